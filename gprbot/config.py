@@ -1,0 +1,272 @@
+"""Typed, frozen configuration loaded from YAML.
+
+Every section is a frozen dataclass; `load_config` checks every key and type and raises ConfigError
+naming the key path (e.g. `survey.spacing_m`) and what was expected. The simulated robot's config
+(`gprbot/configs/sim.yaml`) is the embedded default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from gprbot.errors import ConfigError
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class GprConfig:
+    """The GPR antenna and its acquisition settings."""
+
+    centre_frequency_mhz: float = 900.0
+    samples: int = 512
+    time_window_ns: float = 12.0
+    pre_trigger_ns: float = 1.0  # where time zero (the transmit instant) sits in each trace
+    antenna_height_m: float = 0.02
+    tx_rx_offset_m: float = 0.05
+    trace_spacing_m: float = 0.01
+    noise_mv: float = 0.5
+    eps_r: float | None = None  # known slab permittivity; None: estimate velocity from hyperbolas
+
+
+@dataclass(frozen=True)
+class MountConfig:
+    """Where the antenna sits on the robot: the midpoint of Tx and Rx in the base frame (m)."""
+
+    antenna_lever_arm_m: Vec3 = (0.25, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class SurveyConfig:
+    """A boustrophedon survey: parallel lines along x, stepping sideways in y, never rotating."""
+
+    lines: int = 10
+    spacing_m: float = 0.1
+    length_m: float = 2.0
+    speed_m_s: float = 0.1
+    settle_s: float = 1.0
+    start_xy_m: tuple[float, float] = (0.0, 0.0)
+    trace_rate_hz: float = 100.0
+
+
+@dataclass(frozen=True)
+class PoseNoiseConfig:
+    """Noise added to the planned trajectory when no fusion runs (simulation only)."""
+
+    position_std_m: float = 0.003
+    yaw_std_deg: float = 0.2
+    drift_m_per_m: float = 0.002
+    seed: int = 1
+
+
+@dataclass(frozen=True)
+class InterpretationConfig:
+    """How each B-scan becomes a cross-section and detections."""
+
+    method: Literal["classical", "migrationnet"] = "classical"
+    migration: Literal["kirchhoff", "stolt"] = "kirchhoff"
+    aperture_deg: float = 35.0
+    mask_threshold: float = 0.5
+    min_score: float = 0.2
+    depth_max_m: float = 0.6
+
+
+@dataclass(frozen=True)
+class ReconstructionConfig:
+    """Registration of slices in 3D and completion into a dense cloud."""
+
+    completion: Literal["geometric", "gprnet"] = "geometric"
+    sparse_points: int = 1500
+    dense_points: int = 8192
+    cluster_distance_m: float = 0.08
+    min_slices_per_pipe: int = 2
+
+
+@dataclass(frozen=True)
+class MotorsConfig:
+    """RoboClaw packet-serial motor controllers driving the three omni wheels."""
+
+    port: str = "sim"  # "sim": the RoboClaw emulator on a pty; else e.g. /dev/serial/by-id/usb-...
+    baudrate: int = 38400
+    # (controller address, channel 1|2) for wheels 0, 1, 2 — the order of the kinematics matrix rows
+    wheel_map: tuple[tuple[int, int], ...] = ((128, 1), (128, 2), (129, 1))
+    encoder_counts_per_rev: int = 1024
+    wheel_radius_m: float = 0.05
+    base_radius_m: float = 0.15  # d: centre of the robot to each wheel
+    max_wheel_speed_rad_s: float = 20.0
+    max_wheel_accel_rad_s2: float = 40.0
+    command_timeout_s: float = 0.05
+    retries: int = 2
+    failsafe_timeout_s: float = 0.2  # the controller's own serial timeout: it stops if we go quiet
+
+
+@dataclass(frozen=True)
+class GprDeviceConfig:
+    """The GPR antenna's acquisition interface (Sensors & Software SDK mode)."""
+
+    host: str = "sim"  # "sim": the SDK-mode emulator on loopback; else the NIC's address
+    http_port: int = 8080
+    data_port: int = 8081
+    points_per_trace: int = 512
+    time_sampling_interval_ps: float = 23.4375
+    stacks: int = 4
+    window_shift_ns: float = -1.0
+    trigger_period_s: float = 0.01
+    connect_timeout_s: float = 2.0
+
+
+@dataclass(frozen=True)
+class RealsenseConfig:
+    """The Intel RealSense D435i: IMU and RGB-D streams."""
+
+    source: str = "sim"  # "sim", "device" (first D435i found) or a serial number
+    playback: str | None = None  # a recorded .bag/.db3 file to play instead of a device
+    gyro_hz: int = 400
+    accel_hz: int = 250
+    width: int = 640
+    height: int = 480
+    fps: int = 30
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The simulated world used when no hardware is attached."""
+
+    scene: str = "paper_slab"
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole gprbot configuration."""
+
+    gpr: GprConfig = field(default_factory=GprConfig)
+    mount: MountConfig = field(default_factory=MountConfig)
+    survey: SurveyConfig = field(default_factory=SurveyConfig)
+    pose_noise: PoseNoiseConfig = field(default_factory=PoseNoiseConfig)
+    interpretation: InterpretationConfig = field(default_factory=InterpretationConfig)
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    motors: MotorsConfig = field(default_factory=MotorsConfig)
+    gpr_device: GprDeviceConfig = field(default_factory=GprDeviceConfig)
+    realsense: RealsenseConfig = field(default_factory=RealsenseConfig)
+    runs_dir: str = "runs"
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def _convert(value: Any, tp: Any, path: str) -> Any:
+    """Check `value` against the annotation `tp` and convert it (lists → tuples, int → float)."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path}: expected a mapping of {tp.__name__} keys, got {value!r}")
+        return build_dataclass(tp, value, path)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _convert(value, arg, path)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        if len(errors) == 1:
+            raise ConfigError(errors[0])
+        raise ConfigError(f"{path}: expected {_type_name(tp)}, got {value!r}")
+    if origin is Literal:
+        if value not in args:
+            choices = ", ".join(repr(a) for a in args)
+            raise ConfigError(f"{path}: expected one of {choices}, got {value!r}")
+        return value
+    if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{path}: expected a list, got {value!r}")
+        return tuple(_convert(v, args[0], f"{path}[{i}]") for i, v in enumerate(value))
+    if origin is tuple:
+        if not isinstance(value, list | tuple) or len(value) != len(args):
+            raise ConfigError(f"{path}: expected a list of {len(args)} numbers, got {value!r}")
+        return tuple(_convert(v, a, f"{path}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True)))
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{path}: expected a number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{path}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{path}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{path}: expected a string, got {value!r}")
+        return value
+    raise ConfigError(f"{path}: unsupported config type {_type_name(tp)}")  # a bug in a dataclass
+
+
+def build_dataclass(cls: type[Any], data: dict[str, Any], path: str = "") -> Any:
+    """Build a frozen dataclass from a mapping, rejecting unknown keys and wrong types."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        key_path = f"{path}.{key}" if path else str(key)
+        if key not in names:
+            known = ", ".join(sorted(names))
+            raise ConfigError(f"{key_path}: unknown key (known keys here: {known})")
+        kwargs[key] = _convert(value, hints[key], key_path)
+    return cls(**kwargs)
+
+
+def parse_config(text: str, source: str = "<string>") -> Config:
+    """Parse YAML text into a Config."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML ({exc})") from exc
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: the top level must be a mapping of sections")
+    try:
+        config: Config = build_dataclass(Config, data)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    return config
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """Load a config file; with no path, the embedded simulation default (configs/sim.yaml)."""
+    if path is None:
+        text = resources.files("gprbot").joinpath("configs/sim.yaml").read_text()
+        return parse_config(text, "configs/sim.yaml")
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {p}: {exc.strerror}") from exc
+    return parse_config(text, str(p))
+
+
+def to_dict(config: Any) -> Any:
+    """The resolved config as plain data (for run headers and summaries)."""
+    if dataclasses.is_dataclass(config) and not isinstance(config, type):
+        return {f.name: to_dict(getattr(config, f.name)) for f in dataclasses.fields(config)}
+    if isinstance(config, tuple):
+        return [to_dict(v) for v in config]
+    return config

@@ -1,0 +1,1 @@
+"""Pose estimation: visual odometry, the loosely coupled filter, pose interpolation (pure)."""

@@ -1,0 +1,1 @@
+"""Kiwi kinematics, heading hold, limits and the survey planner (pure, no I/O)."""

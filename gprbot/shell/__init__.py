@@ -1,0 +1,1 @@
+"""The operator's command shell: line protocol, TCP and serial servers, client."""

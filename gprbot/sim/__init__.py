@@ -1,0 +1,1 @@
+"""The simulated world: scenes, the GPR forward model, robot and sensor models."""
