@@ -36,6 +36,11 @@ class GprConfig:
     noise_mv: float = 0.5
     eps_r: float | None = None  # known slab permittivity; None: estimate velocity from hyperbolas
 
+    @property
+    def dt_ns(self) -> float:
+        """Sample interval: sample k lies at k * dt_ns - pre_trigger_ns after the transmit instant."""
+        return self.time_window_ns / self.samples
+
 
 @dataclass(frozen=True)
 class MountConfig:
