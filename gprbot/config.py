@@ -32,7 +32,6 @@ class GprConfig:
     pre_trigger_ns: float = 1.0  # where time zero (the transmit instant) sits in each trace
     antenna_height_m: float = 0.02
     tx_rx_offset_m: float = 0.05
-    trace_spacing_m: float = 0.01
     noise_mv: float = 0.5
     eps_r: float | None = None  # known slab permittivity; None: estimate velocity from hyperbolas
 
@@ -59,7 +58,7 @@ class SurveyConfig:
     speed_m_s: float = 0.1
     settle_s: float = 1.0
     start_xy_m: tuple[float, float] = (0.0, 0.0)
-    trace_rate_hz: float = 100.0
+    trace_rate_hz: float = 20.0  # GPR traces per second (time-triggered; positions come from poses)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,104 @@
+"""The `gprbot` command: demo, interpret, info (and, as they land, run, replay, shell, pull, eval)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from gprbot import __version__
+from gprbot.errors import GprbotError
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from gprbot.config import load_config
+    from gprbot.demo import run_demo
+    from gprbot.sim.scene import builtin_scene_names, load_scene
+
+    cfg = load_config(args.config)
+    names = builtin_scene_names() if args.scene == "all" else [args.scene or cfg.sim.scene]
+    base = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("demo-%Y%m%d-%H%M%S")
+    all_ok = True
+    for name in names:
+        scene = load_scene(name)
+        out_dir = base / scene.name if len(names) > 1 else base
+        demo = run_demo(cfg, scene, out_dir)
+        r = demo.result
+        v_note = "estimated from the hyperbolas" if r.velocity_estimated else "from the configured eps_r"
+        print(f"scene {scene.name}: {len(r.lines)} lines, {len(r.reconstruction.pipes)} pipes found, "
+              f"velocity {r.velocity_m_per_ns:.4f} m/ns ({v_note}), {demo.seconds:.1f} s")
+        print(demo.table)
+        print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if demo.ok else 'NO'}")
+        print(f"results: {out_dir}\n")
+        all_ok &= demo.ok
+    return 0 if all_ok or not args.check else 3
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from gprbot.gpr.dzt import format_info, header_info, read_dzt
+
+    dzt = read_dzt(args.file)
+    if args.json:
+        print(json.dumps(header_info(dzt.header), indent=2, default=str))
+    else:
+        print(format_info(dzt.header))
+    return 0
+
+
+def _cmd_interpret(args: argparse.Namespace) -> int:
+    from gprbot.interpret_file import interpret_dzt
+
+    report = interpret_dzt(Path(args.file), Path(args.out) if args.out else None, args.velocity, args.channel)
+    print(report)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the `gprbot` command."""
+    parser = argparse.ArgumentParser(prog="gprbot", description="GPR inspection robot: survey, interpret, model.")
+    parser.add_argument("--version", action="version", version=f"gprbot {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    demo = sub.add_parser("demo", help="run a whole simulated survey and reconstruct the pipes")
+    demo.add_argument("--scene", help="built-in scene name, a scene YAML file, or 'all' (default: config's)")
+    demo.add_argument("--out", help="run directory to write (default: runs/demo-<time>)")
+    demo.add_argument("--config", help="config YAML (default: the embedded simulation config)")
+    demo.add_argument("--check", action="store_true", help="exit 3 unless every pipe is within the bounds")
+    demo.set_defaults(func=_cmd_demo)
+
+    info = sub.add_parser("info", help="print the header of a GSSI DZT file")
+    info.add_argument("file")
+    info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    info.set_defaults(func=_cmd_info)
+
+    interp = sub.add_parser("interpret", help="interpret one B-scan (a DZT file) into pipe detections")
+    interp.add_argument("file")
+    interp.add_argument("--velocity", type=float, help="wave velocity in m/ns (default: estimated)")
+    interp.add_argument("--channel", type=int, default=0, help="channel of a multi-channel file")
+    interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
+    interp.set_defaults(func=_cmd_interpret)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point: one clear error line and a non-zero exit for bad input, never a traceback."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except GprbotError as exc:
+        if args.debug:
+            raise
+        print(f"gprbot: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gprbot: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

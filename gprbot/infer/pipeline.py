@@ -1,0 +1,89 @@
+"""From B-scans to a 3D model: preprocess → interpret → register → sparse cloud → completion.
+
+This is the work the inference worker does; `gprbot demo`, `gprbot replay` and the daemon all call it,
+so that a simulated run and a run on the robot go through the same code.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.config import Config
+from gprbot.gpr.bscan import BScan
+from gprbot.gpr.interpret import CrossSection, estimate_velocity, interpret_bscan
+from gprbot.gpr.preprocess import preprocess
+from gprbot.gpr.traveltime import velocity_from_eps
+from gprbot.infer.completion import Reconstruction, geometric_completion
+from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
+
+
+@dataclass(frozen=True)
+class LineResult:
+    """One survey line: its processed B-scan, its cross-section and the slice registered in 3D."""
+
+    line: int
+    bscan: BScan
+    section: CrossSection
+    slice: SliceCloud
+
+
+@dataclass(frozen=True)
+class SurveyResult:
+    """The interpretation and reconstruction of a whole survey."""
+
+    lines: tuple[LineResult, ...]
+    velocity_m_per_ns: float
+    velocity_estimated: bool
+    sparse: NDArray[np.float64]
+    reconstruction: Reconstruction
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+def column_positions(bscan: BScan, x_m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """3D antenna positions (nx, 3) of cross-section columns given in along-track metres."""
+    along = bscan.along_track_m()
+    return np.stack([np.interp(x_m, along, bscan.positions[:, k]) for k in range(3)], axis=1)
+
+
+def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool]:
+    """The wave velocity for the whole survey: from the configured eps_r, else from all hyperbolas."""
+    if cfg.gpr.eps_r is not None:
+        return velocity_from_eps(cfg.gpr.eps_r), False
+    estimate = estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
+    return float(estimate.v), True
+
+
+def interpret_line(line: int, processed: BScan, cfg: Config, velocity: float) -> LineResult:
+    """Interpret one preprocessed line and register its cross-section in 3D."""
+    section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity)
+    cols = column_positions(processed, section.x_m)
+    return LineResult(line, processed, section, register_slice(line, section.mask, section.z_m, cols))
+
+
+def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.Generator) -> SurveyResult:
+    """Interpret every line of a survey and complete the registered slices into pipes."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    processed = {line: preprocess(b, cfg.gpr) for line, b in sorted(bscans.items())}
+    timings["preprocess"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    velocity, estimated = survey_velocity(processed, cfg)
+    timings["velocity"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    lines = tuple(interpret_line(line, b, cfg, velocity) for line, b in processed.items())
+    timings["interpret"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    slices = [lr.slice for lr in lines]
+    points = np.concatenate([s.points for s in slices]) if slices else np.zeros((0, 3))
+    sparse = resample_cloud(points, cfg.reconstruction.sparse_points, rng) if len(points) else points
+    reconstruction = geometric_completion(slices, cfg.reconstruction, rng)
+    timings["reconstruct"] = time.perf_counter() - t0
+    return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings)

@@ -1,0 +1,71 @@
+"""Write a survey's results into a run directory: PLYs, pipes.json, PNGs and summary.json."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gprbot.gpr.render import write_bscan_png, write_cross_section_png
+from gprbot.infer.completion import pipe_colors
+from gprbot.infer.outputs import write_json_atomic, write_pipes_json
+from gprbot.infer.pipeline import SurveyResult
+from gprbot.infer.ply import write_ply
+from gprbot.infer.topdown import render_topdown
+
+SPARSE_PLY = "sparse.ply"
+DENSE_PLY = "dense.ply"
+PIPES_JSON = "pipes.json"
+SUMMARY_JSON = "summary.json"
+
+
+def write_survey_outputs(
+    out_dir: Path,
+    result: SurveyResult,
+    meta: dict[str, Any],
+    extent_xy: tuple[float, float, float, float],
+    truth_axes: list[np.ndarray] | None = None,
+    truth_masks: dict[int, np.ndarray] | None = None,
+) -> list[Path]:
+    """Write every result file of a survey into out_dir (created if needed); returns the paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    recon = result.reconstruction
+    comments = [f"gprbot run {meta.get('run', '')}", "frame: site (x forward, y left, z up), metres"]
+
+    write_ply(out_dir / SPARSE_PLY, result.sparse, comments=[*comments, "sparse registered cloud"])
+    written.append(out_dir / SPARSE_PLY)
+    colors = pipe_colors(max(len(recon.pipes), 1))[recon.labels] if len(recon.dense) else None
+    write_ply(out_dir / DENSE_PLY, recon.dense, colors, comments=[*comments, "dense completed cloud"])
+    written.append(out_dir / DENSE_PLY)
+    write_pipes_json(out_dir / PIPES_JSON, recon, meta)
+    written.append(out_dir / PIPES_JSON)
+
+    for lr in result.lines:
+        bscan_png = out_dir / f"bscan_line{lr.line:02d}.png"
+        write_bscan_png(bscan_png, lr.bscan)
+        section_png = out_dir / f"section_line{lr.line:02d}.png"
+        truth = truth_masks.get(lr.line) if truth_masks else None
+        write_cross_section_png(section_png, lr.section, truth)
+        written += [bscan_png, section_png]
+
+    survey_lines = [lr.bscan.positions[:, :2] for lr in result.lines]
+    map_png = out_dir / "map.png"
+    render_topdown(map_png, recon, extent_xy, truth_axes or [], survey_lines)
+    written.append(map_png)
+
+    summary = {
+        **meta,
+        "velocity_m_per_ns": result.velocity_m_per_ns,
+        "velocity_estimated": result.velocity_estimated,
+        "lines": len(result.lines),
+        "pipes_found": len(recon.pipes),
+        "sparse_points": len(result.sparse),
+        "dense_points": len(recon.dense),
+        "timings_s": result.timings_s,
+        "files": [*sorted(p.name for p in written), SUMMARY_JSON],
+    }
+    write_json_atomic(out_dir / SUMMARY_JSON, summary)
+    written.append(out_dir / SUMMARY_JSON)
+    return written
