@@ -51,7 +51,8 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_interpret(args: argparse.Namespace) -> int:
     from gprbot.interpret_file import interpret_dzt
 
-    report = interpret_dzt(Path(args.file), Path(args.out) if args.out else None, args.velocity, args.channel)
+    out = Path(args.out) if args.out else None
+    report = interpret_dzt(Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing)
     print(report)
     return 0
 
@@ -79,6 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("file")
     interp.add_argument("--velocity", type=float, help="wave velocity in m/ns (default: estimated)")
     interp.add_argument("--channel", type=int, default=0, help="channel of a multi-channel file")
+    interp.add_argument("--frequency", type=float, help="antenna centre frequency in MHz (default: from header)")
+    interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
     interp.set_defaults(func=_cmd_interpret)
     return parser

@@ -1,0 +1,128 @@
+"""`gprbot interpret`: one B-scan from a DZT file → detections.json and PNGs."""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from gprbot.config import GprConfig, InterpretationConfig, load_config
+from gprbot.errors import DataFormatError
+from gprbot.gpr.bscan import BScan
+from gprbot.gpr.dzt import DztHeader, read_dzt
+from gprbot.gpr.interpret import interpret_bscan
+from gprbot.gpr.preprocess import preprocess
+from gprbot.gpr.render import write_bscan_png, write_cross_section_png
+from gprbot.infer.outputs import write_json_atomic
+
+# GSSI antenna model numbers → centre frequency (MHz), from GSSI's antenna catalogue.
+GSSI_ANTENNAS = {
+    "3207": 100, "5106": 200, "50270": 270, "5103": 400, "50400": 400, "3102": 500,
+    "3101": 900, "5100": 1500, "51600": 1600, "62000": 2000, "52600": 2600, "62300": 2300,
+}
+# A GSSI ground-coupled antenna rides on the surface; its Tx–Rx spacing is a fraction of a
+# wavelength in air. These are approximations for the travel-time model, not vendor figures.
+DEFAULT_OFFSET_M = {100: 0.5, 200: 0.3, 270: 0.25, 400: 0.16, 500: 0.12, 900: 0.06}
+
+
+def antenna_frequency_mhz(antenna: str) -> float | None:
+    """Centre frequency of a GSSI antenna from its header name ("5103", "400MHz", ...)."""
+    m = re.search(r"(\d+(?:\.\d+)?)\s*([MG])Hz", antenna, re.IGNORECASE)
+    if m:
+        return float(m.group(1)) * (1000.0 if m.group(2).upper() == "G" else 1.0)
+    for model, mhz in GSSI_ANTENNAS.items():
+        if model in antenna:
+            return float(mhz)
+    return None
+
+
+def gpr_config_for(header: DztHeader, base: GprConfig, frequency_mhz: float | None) -> GprConfig:
+    """The acquisition settings of a DZT file expressed as a GprConfig."""
+    mhz = frequency_mhz or antenna_frequency_mhz(header.antenna)
+    if mhz is None:
+        raise DataFormatError(
+            f"cannot tell the antenna's centre frequency from its name {header.antenna!r}; "
+            "pass --frequency MHZ"
+        )
+    offset = next((v for f, v in sorted(DEFAULT_OFFSET_M.items()) if mhz <= f), 0.05)
+    return replace(
+        base,
+        centre_frequency_mhz=mhz,
+        samples=header.samples,
+        time_window_ns=header.range_ns,
+        pre_trigger_ns=float("nan"),  # unknown in a file: found from the direct wave
+        antenna_height_m=0.0,
+        tx_rx_offset_m=offset,
+        eps_r=None,
+    )
+
+
+def dzt_bscan(path: Path, channel: int, spacing_m: float | None) -> tuple[BScan, DztHeader]:
+    """The traces of one channel of a DZT file as a B-scan along x."""
+    dzt = read_dzt(path)
+    data = dzt.as_float(channel)
+    if data.shape[0] == 0:
+        raise DataFormatError(f"{path}: the file holds no traces")
+    spm = dzt.header.traces_per_m
+    dx = spacing_m if spacing_m else (1.0 / spm if spm > 0 else None)
+    if dx is None:
+        raise DataFormatError(
+            f"{path}: the file has no distance calibration (traces per metre is 0); pass --spacing M"
+        )
+    n = data.shape[0]
+    positions = np.zeros((n, 3))
+    positions[:, 0] = np.arange(n) * dx
+    return BScan(data, dzt.header.dt_ns, float("nan"), positions, np.zeros(n)), dzt.header
+
+
+def interpret_dzt(
+    path: Path,
+    out_dir: Path | None,
+    velocity: float | None,
+    channel: int = 0,
+    frequency_mhz: float | None = None,
+    spacing_m: float | None = None,
+) -> str:
+    """Interpret a DZT file, write detections.json and PNGs, and return a printable report."""
+    cfg = load_config()
+    bscan, header = dzt_bscan(path, channel, spacing_m)
+    gpr = gpr_config_for(header, cfg.gpr, frequency_mhz)
+    interp: InterpretationConfig = cfg.interpretation
+    out = out_dir or Path(cfg.runs_dir) / time.strftime(f"interpret-{path.stem}-%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    processed = preprocess(bscan, gpr)
+    section = interpret_bscan(processed, gpr, interp, velocity)
+    detections = [
+        {"x_m": d.x_m, "depth_m": d.depth_m, "radius_m": d.radius_m, "score": d.score} for d in section.detections
+    ]
+    write_json_atomic(
+        out / "detections.json",
+        {
+            "file": str(path),
+            "channel": channel,
+            "antenna": header.antenna,
+            "centre_frequency_mhz": gpr.centre_frequency_mhz,
+            "velocity_m_per_ns": section.velocity_m_per_ns,
+            "velocity_estimated": section.velocity_estimated,
+            "x_origin": "the first trace",
+            "depth_origin": "the ground surface (depth of the pipe's centre, positive down)",
+            "detections": detections,
+        },
+    )
+    write_bscan_png(out / "bscan.png", processed)
+    write_cross_section_png(out / "section.png", section)
+    lines = [
+        f"{path.name}: {header.traces} traces × {header.samples} samples, {gpr.centre_frequency_mhz:.0f} MHz",
+        f"velocity {section.velocity_m_per_ns:.4f} m/ns "
+        f"({'estimated' if section.velocity_estimated else 'given'}), {len(detections)} detections:",
+    ]
+    lines += [
+        f"  x {d['x_m']:6.2f} m  depth {d['depth_m']:5.2f} m  radius {100 * d['radius_m']:4.1f} cm  "
+        f"score {d['score']:.2f}"
+        for d in detections
+    ]
+    lines.append(f"written: {out}/detections.json, bscan.png, section.png")
+    return "\n".join(lines)
