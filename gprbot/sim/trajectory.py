@@ -62,7 +62,7 @@ def simulate_trajectory(
     wander = _smooth_noise(rng, n, TRACKING_STD_M, 0.5 * POSE_RATE_HZ)
     true_ant = np.column_stack([plan.position(times) + lateral * wander[:, None], np.zeros(n)])
     true_yaw = np.deg2rad(_smooth_noise(rng, n, TRUE_YAW_STD_DEG, 1.0 * POSE_RATE_HZ))
-    true_rot = Rotation.from_euler("z", true_yaw)
+    true_rot = Rotation.from_euler("z", true_yaw[:, None])
     true_base = true_ant - true_rot.apply(arm)
     true_base[:, 2] = 0.0
 
@@ -73,7 +73,7 @@ def simulate_trajectory(
     est_base = true_base.copy()
     est_base[:, :2] += walk + gaussian_filter1d(white, 2.0, axis=0, mode="nearest")
     est_yaw = true_yaw + np.deg2rad(_smooth_noise(rng, n, noise.yaw_std_deg, 0.5 * POSE_RATE_HZ))
-    est_rot = Rotation.from_euler("z", est_yaw)
+    est_rot = Rotation.from_euler("z", est_yaw[:, None])
 
     true_q = true_rot.as_quat()
     est_q = est_rot.as_quat()
