@@ -41,7 +41,10 @@ class SimulatedTrajectory:
 
 
 def _smooth_noise(rng: np.random.Generator, n: int, std: float, sigma_samples: float) -> NDArray[np.float64]:
-    raw = gaussian_filter1d(rng.standard_normal(n), sigma_samples, mode="nearest")
+    # Filter a longer sequence and keep its middle: at the edges a Gaussian filter averages fewer
+    # independent samples, which would give the ends several times the intended spread.
+    pad = int(4 * sigma_samples) + 1
+    raw = gaussian_filter1d(rng.standard_normal(n + 2 * pad), sigma_samples)[pad : pad + n]
     scale = raw.std()
     return np.asarray(raw / scale * std) if scale > 0 else np.zeros(n)
 
