@@ -141,6 +141,19 @@ class RealsenseConfig:
 
 
 @dataclass(frozen=True)
+class MotionConfig:
+    """Heading hold and jog limits (the robot never rotates: ω comes only from heading hold)."""
+
+    heading_kp_per_s: float = 3.0
+    heading_ki_per_s2: float = 1.5
+    heading_kd_gyro: float = 0.05
+    max_heading_omega_rad_s: float = 0.2
+    jog_max_speed_m_s: float = 0.3
+    jog_deadman_timeout_s: float = 0.5
+    jog_max_duration_s: float = 60.0
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """The simulated world used when no hardware is attached."""
 
@@ -160,6 +173,7 @@ class Config:
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     motors: MotorsConfig = field(default_factory=MotorsConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
     gpr_device: GprDeviceConfig = field(default_factory=GprDeviceConfig)
     realsense: RealsenseConfig = field(default_factory=RealsenseConfig)
     runs_dir: str = "runs"
