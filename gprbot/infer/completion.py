@@ -1,0 +1,147 @@
+"""The geometric completion — the honest baseline that GPRNet has to beat.
+
+Slices → blobs (one pipe's section per line) → tracks across lines → per pipe an axis polyline and a
+radius → tees joined (a pipe whose end runs into another pipe ends on its axis) → a dense cloud sampled
+uniformly inside the solid rods over the surveyed extent (from the first to the last line that saw the
+pipe, plus half a line spacing).
+"""
+
+from __future__ import annotations
+
+import colorsys
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.config import ReconstructionConfig
+from gprbot.infer.pipe_fit import PipeFit, extend_axis, extension_length, fit_pipe
+from gprbot.infer.pipe_track import track_pipes
+from gprbot.infer.polyline import closest_points_of_segments, drop_collinear_vertices, drop_repeated_vertices
+from gprbot.infer.register import SliceCloud
+from gprbot.infer.rods import sample_rods
+from gprbot.infer.slice_blobs import SurveyFrame, split_slice, survey_frame
+
+JOIN_MARGIN_M = 0.01  # a pipe end runs into another pipe when its axis passes within R + this of it
+JOIN_REACH_LINES = 2.0  # how far past its last sighting (in line spacings) a pipe may still reach another
+
+
+@dataclass(frozen=True)
+class PipeModel:
+    """One pipe: axis polyline (site frame, m), radius, depth of cover, diameter, confidence in [0, 1].
+
+    `ends_on` names, for the start and the end of the axis, the index of the pipe it ends on (a tee).
+    """
+
+    axis: NDArray[np.float64]
+    radius_m: float
+    depth_of_cover_m: float
+    diameter_m: float
+    confidence: float
+    n_slices: int
+    ends_on: tuple[int | None, int | None] = (None, None)
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """The pipes found, a dense cloud (N, 3) inside them and the pipe index of every dense point."""
+
+    pipes: tuple[PipeModel, ...]
+    dense: NDArray[np.float64]
+    labels: NDArray[np.intp]
+
+
+# Ten well-separated colours (Tableau 10 with its grey swapped out: grey is the truth on the map).
+_PALETTE = np.array(
+    [
+        (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+        (140, 86, 75), (227, 119, 194), (0, 128, 128), (188, 189, 34), (23, 190, 207),
+    ],
+    dtype=np.uint8,
+)  # fmt: skip
+
+
+def pipe_colors(n: int) -> NDArray[np.uint8]:
+    """n distinct RGB colours, one per pipe: a fixed palette of ten, then golden-ratio hue steps."""
+    extra = [
+        colorsys.hsv_to_rgb((0.05 + 0.618033988749895 * i) % 1.0, 0.8, 0.95 if i % 2 else 0.65)
+        for i in range(max(0, n - len(_PALETTE)))
+    ]
+    colours = np.vstack([_PALETTE, np.round(np.array(extra).reshape(-1, 3) * 255.0).astype(np.uint8)])
+    return colours[:n]
+
+
+def _end_joins(
+    fits: Sequence[PipeFit], axes: Sequence[NDArray[np.float64]], frame: SurveyFrame
+) -> list[list[tuple[int, NDArray[np.float64]] | None]]:
+    """For each pipe's start and end: (other pipe, junction point) when its end runs into that pipe."""
+    joins: list[list[tuple[int, NDArray[np.float64]] | None]] = []
+    for p, fit in enumerate(fits):
+        ends: list[tuple[int, NDArray[np.float64]] | None] = []
+        for side, point in ((0, fit.inner_axis[0]), (1, fit.inner_axis[-1])):
+            outward = fit.outward[side]
+            ray_end = point + outward * extension_length(outward, JOIN_REACH_LINES * frame.spacing_m, frame)
+            best: tuple[float, int, NDArray[np.float64]] | None = None
+            for q, other in enumerate(axes):
+                if q == p:
+                    continue
+                for a, b in itertools.pairwise(other):
+                    s, _, distance = closest_points_of_segments(point, ray_end, a, b)
+                    if distance <= fits[q].radius_m + JOIN_MARGIN_M and (best is None or s < best[0]):
+                        best = (s, q, point + s * (ray_end - point))
+            ends.append(None if best is None else (best[1], best[2]))
+        joins.append(ends)
+    return joins
+
+
+def _pipe_model(axis: NDArray[np.float64], fit: PipeFit, ends_on: tuple[int | None, int | None]) -> PipeModel:
+    return PipeModel(
+        axis=axis,
+        radius_m=fit.radius_m,
+        depth_of_cover_m=float(np.min(-axis[:, 2])) - fit.radius_m,
+        diameter_m=2.0 * fit.radius_m,
+        confidence=fit.confidence,
+        n_slices=fit.n_slices,
+        ends_on=ends_on,
+    )
+
+
+def fit_pipes(slices: Sequence[SliceCloud], cfg: ReconstructionConfig) -> list[PipeModel]:
+    """Blobs, tracks, fits and tee joins: the pipes seen on at least cfg.min_slices_per_pipe lines."""
+    frame = survey_frame(slices)
+    seen = [s for s in slices if len(s.points)]
+    seen.sort(key=lambda s: float(np.median(frame.offset_of(np.asarray(s.points)))))
+    blobs_per_line = [split_slice(order, s, frame) for order, s in enumerate(seen)]
+    tracks = track_pipes(blobs_per_line, frame, cfg.cluster_distance_m)
+    tracks = [t for t in tracks if len(t) >= max(1, cfg.min_slices_per_pipe)]
+    tracks.sort(key=lambda t: (t[0].offset, t[0].along))
+    fits = [fit_pipe(t, frame) for t in tracks]
+    half = 0.5 * frame.spacing_m
+    axes = [
+        extend_axis(
+            f.inner_axis,
+            f.outward,
+            (extension_length(f.outward[0], half, frame), extension_length(f.outward[1], half, frame)),
+        )
+        for f in fits
+    ]
+    joins = _end_joins(fits, axes, frame)
+    pipes = []
+    for fit, axis, (start, end) in zip(fits, axes, joins, strict=True):
+        first = start[1] if start is not None else axis[0]
+        last = end[1] if end is not None else axis[-1]
+        joined = drop_collinear_vertices(drop_repeated_vertices(np.vstack([first, fit.inner_axis, last])))
+        ends_on = (start[0] if start else None, end[0] if end else None)
+        pipes.append(_pipe_model(joined, fit, ends_on))
+    return pipes
+
+
+def geometric_completion(
+    slices: Sequence[SliceCloud], cfg: ReconstructionConfig, rng: np.random.Generator
+) -> Reconstruction:
+    """Complete registered slices into pipes and a dense cloud of cfg.dense_points points inside them."""
+    pipes = fit_pipes(slices, cfg)
+    dense, labels = sample_rods([p.axis for p in pipes], [p.radius_m for p in pipes], cfg.dense_points, rng)
+    return Reconstruction(pipes=tuple(pipes), dense=dense, labels=labels)

@@ -1,0 +1,128 @@
+"""Result files that survive a crash: atomic writes (temp file + fsync + os.replace) and pipes.json."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from gprbot.infer.completion import Reconstruction, pipe_colors
+from gprbot.infer.polyline import polyline_length
+
+PIPES_FORMAT = "gprbot-pipes"
+PIPES_VERSION = 1
+SITE_FRAME = "site: x forward along the survey lines, y left, z up (REP-103); ground surface at z = 0"
+_DECIMALS = 6  # µm: far below any measurement, keeps the file readable
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike[str]) -> Iterator[IO[bytes]]:
+    """Open a temp file beside `path` for binary writing; it replaces `path` only if the block succeeds.
+
+    A reader (or a crash) never sees a half-written file: either the old file or the complete new one.
+    """
+    target = Path(path)
+    fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            yield handle
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp_name, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp_name)
+        raise
+
+
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write bytes to path atomically."""
+    with atomic_open(path) as handle:
+        handle.write(data)
+
+
+def _json_default(value: Any) -> Any:
+    """JSON for numpy scalars and arrays and paths; anything else is a bug in the caller."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+_INLINE_WIDTH = 100
+
+
+def _nested(value: Any) -> bool:
+    return isinstance(value, dict | list | tuple | np.ndarray)
+
+
+def _inline(value: Any) -> bool:
+    """Written on one line: lists of numbers or of points (polylines), and short flat mappings."""
+    if isinstance(value, list | tuple):
+        return all(not _nested(v) or (isinstance(v, list | tuple) and not any(map(_nested, v))) for v in value)
+    if isinstance(value, dict):
+        return not any(map(_nested, value.values())) and len(json.dumps(value, default=_json_default)) <= _INLINE_WIDTH
+    return True
+
+
+def json_text(obj: Any, indent: str = "") -> str:
+    """Indented JSON in which points, polylines and short flat mappings stay on one line each."""
+    if isinstance(obj, np.ndarray):
+        obj = obj.tolist()
+    inner = indent + "  "
+    if isinstance(obj, dict) and not _inline(obj):
+        body = ",\n".join(f"{inner}{json.dumps(str(k))}: {json_text(v, inner)}" for k, v in obj.items())
+        return "{\n" + body + "\n" + indent + "}"
+    if isinstance(obj, list | tuple) and not _inline(obj):
+        return "[\n" + ",\n".join(inner + json_text(v, inner) for v in obj) + "\n" + indent + "]"
+    return json.dumps(obj, allow_nan=False, default=_json_default, separators=(", ", ": "))
+
+
+def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> None:
+    """Write obj as indented JSON (numpy values allowed, NaN refused) atomically."""
+    write_bytes_atomic(path, (json_text(obj) + "\n").encode("utf-8"))
+
+
+def _rounded(values: Any) -> Any:
+    return np.round(np.asarray(values, dtype=np.float64), _DECIMALS).tolist()
+
+
+def pipes_document(reconstruction: Reconstruction, meta: Mapping[str, Any]) -> dict[str, Any]:
+    """The content of pipes.json: meta (units, frame, run id, ...) and one record per pipe."""
+    colours = pipe_colors(len(reconstruction.pipes))
+    pipes = []
+    for index, pipe in enumerate(reconstruction.pipes):
+        pipes.append(
+            {
+                "id": index,
+                "axis_m": _rounded(pipe.axis),
+                "endpoints_m": _rounded(pipe.axis[[0, -1]]),
+                "length_m": round(polyline_length(pipe.axis), _DECIMALS),
+                "depth_of_cover_m": round(pipe.depth_of_cover_m, _DECIMALS),
+                "diameter_m": round(pipe.diameter_m, _DECIMALS),
+                "confidence": round(pipe.confidence, 4),
+                "n_slices": pipe.n_slices,
+                "ends_on": {"start": pipe.ends_on[0], "end": pipe.ends_on[1]},
+                "colour": "#{:02x}{:02x}{:02x}".format(*(int(c) for c in colours[index])),
+            }
+        )
+    header = {"frame": SITE_FRAME, **meta, "units": "m"}
+    return {"format": PIPES_FORMAT, "version": PIPES_VERSION, "meta": header, "pipes": pipes}
+
+
+def write_pipes_json(path: str | os.PathLike[str], reconstruction: Reconstruction, meta: dict[str, Any]) -> None:
+    """Write pipes.json: per pipe its axis (m, site frame), depth of cover, diameter, confidence, slices."""
+    write_json_atomic(path, pipes_document(reconstruction, meta))
