@@ -99,17 +99,19 @@ class MotorsConfig:
     """RoboClaw packet-serial motor controllers driving the three omni wheels."""
 
     port: str = "sim"  # "sim": the RoboClaw emulator on a pty; else e.g. /dev/serial/by-id/usb-...
-    baudrate: int = 38400
+    baudrate: int = 115200  # TTL multi-unit line only (must match the controllers); USB ignores it
     # (controller address, channel 1|2) for wheels 0, 1, 2 — the order of the kinematics matrix rows
     wheel_map: tuple[tuple[int, int], ...] = ((128, 1), (128, 2), (129, 1))
+    # (address, port) for controllers on their own USB port; addresses not listed use `port`
+    controller_ports: tuple[tuple[int, str], ...] = ()
     encoder_counts_per_rev: int = 1024
     wheel_radius_m: float = 0.05
     base_radius_m: float = 0.15  # d: centre of the robot to each wheel
     max_wheel_speed_rad_s: float = 20.0
     max_wheel_accel_rad_s2: float = 40.0
-    command_timeout_s: float = 0.05
+    command_timeout_s: float = 0.02  # (1 + retries) × this + one 20 ms control period <= 0.1 s
     retries: int = 2
-    failsafe_timeout_s: float = 0.2  # the controller's own serial timeout: it stops if we go quiet
+    failsafe_timeout_s: float = 0.1  # the controller's own serial timeout: it stops if we go quiet
 
 
 @dataclass(frozen=True)
