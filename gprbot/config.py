@@ -134,12 +134,15 @@ class RealsenseConfig:
     """The Intel RealSense D435i: IMU and RGB-D streams."""
 
     source: str = "sim"  # "sim", "device" (first D435i found) or a serial number
-    playback: str | None = None  # a recorded .bag/.db3 file to play instead of a device
+    playback: str | None = None  # a recording (.db3; legacy .bag) played once, as fast as consumed, instead of a device
     gyro_hz: int = 400
     accel_hz: int = 250
     width: int = 640
     height: int = 480
     fps: int = 30
+    stall_timeout_s: float = 3.0  # no frame for this long: the camera counts as lost and is reopened
+    reconnect_backoff_s: tuple[float, float] = (0.5, 8.0)  # first and longest wait between reopen attempts
+    clock_jump_threshold_s: float = 0.1  # device clock steps beyond this re-anchor the host-time conversion
 
 
 @dataclass(frozen=True)
