@@ -8,9 +8,10 @@ naming the key path (e.g. `survey.spacing_m`) and what was expected. The simulat
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -46,6 +47,8 @@ class MountConfig:
     """Where the antenna sits on the robot: the midpoint of Tx and Rx in the base frame (m)."""
 
     antenna_lever_arm_m: Vec3 = (0.25, 0.0, 0.0)
+    camera_position_m: Vec3 = (0.20, 0.0, 0.30)  # D435i optical centre in the base frame: measure on the robot
+    camera_pitch_down_deg: float = 60.0
 
 
 @dataclass(frozen=True)
@@ -159,6 +162,54 @@ class MotionConfig:
 
 
 @dataclass(frozen=True)
+class FusionConfig:
+    """Noise model and bookkeeping of the pose filter (the `fusion:` config section; units in the names)."""
+
+    gyro_noise_rad_s_sqrt_hz: float = 3.0e-4  # BMI055 2.44e-4 plus quantisation
+    accel_noise_m_s2_sqrt_hz: float = 2.0e-3  # BMI055 1.47e-3 plus quantisation
+    gyro_bias_walk_rad_s2_sqrt_hz: float = 2.0e-5
+    accel_bias_walk_m_s3_sqrt_hz: float = 2.0e-4
+    wheel_scale_walk_per_sqrt_s: float = 1.0e-4  # tyre wear, load shifts
+    initial_position_std_m: float = 1.0e-4
+    initial_velocity_std_m_s: float = 0.01
+    initial_tilt_std_deg: float = 0.5
+    initial_yaw_std_deg: float = 0.01  # the start heading defines odom
+    initial_gyro_bias_std_rad_s: float = 2.0e-3  # after the at-rest mean
+    initial_accel_bias_std_m_s2: float = 0.1
+    initial_wheel_scale_std: float = 0.02
+    wheel_rim_speed_std_m_s: float = 0.01  # encoder quantisation over a 20 ms poll, roller ripple
+    wheel_slip_std: float = 0.02  # fraction of the rim speed
+    wheel_speed_delay_s: float = 0.01  # a speed averaged over a 20 ms poll describes its middle
+    vertical_speed_std_m_s: float = 0.005
+    floor_height_std_m: float = 0.01  # a slab is level: odom z stays at its start value (0 turns this off)
+    vo_covariance_scale: float = 1.0
+    vo_translation_floor_m: float = 5.0e-5
+    vo_rotation_floor_rad: float = 5.0e-5
+    gate_probability: float = 0.999  # χ² gate on each update's normalised innovation
+    max_consecutive_rejections: int = 25  # then accept anyway: a filter must not shut a sensor out for good
+    init_duration_s: float = 0.5  # at rest: mean accel gives roll/pitch (and mean gyro the gyro bias)
+    gyro_bias_from_rest: bool = True  # False: start from zero bias (when the start is not at rest)
+    reorder_window_s: float = 0.1  # messages are processed this long after the newest one, in time order
+    propagation_step_s: float = 0.01  # IMU samples are averaged over this before each covariance step
+    output_rate_hz: float = 100.0
+    history_s: float = 900.0  # output poses kept for pose_at
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool):
+                continue
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"fusion.{f.name}: expected a finite number ≥ 0, got {value!r}")
+        if not 0.5 < self.gate_probability < 1.0:
+            raise ConfigError(
+                f"fusion.gate_probability: expected a probability in (0.5, 1), got {self.gate_probability}"
+            )
+        if self.output_rate_hz <= 0.0:
+            raise ConfigError(f"fusion.output_rate_hz: expected a positive rate, got {self.output_rate_hz}")
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """The simulated world used when no hardware is attached."""
 
@@ -179,6 +230,7 @@ class Config:
     sim: SimConfig = field(default_factory=SimConfig)
     motors: MotorsConfig = field(default_factory=MotorsConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
     gpr_device: GprDeviceConfig = field(default_factory=GprDeviceConfig)
     realsense: RealsenseConfig = field(default_factory=RealsenseConfig)
     runs_dir: str = "runs"

@@ -96,13 +96,13 @@ def compare_to_truth(
         assigned[i] = j
         used.add(j)
     for i, t in enumerate(truths):
-        j = assigned.get(i)
-        if j is None:
+        match = assigned.get(i)
+        if match is None:
             matches.append(PipeMatch(t.name, t.fill, None, np.nan, np.nan, 2 * t.radius_m, np.nan, 0.0))
             continue
-        horizontal, depth, coverage = costs[(i, j)]
+        horizontal, depth, coverage = costs[(i, match)]
         matches.append(
-            PipeMatch(t.name, t.fill, j, horizontal, depth, 2 * t.radius_m, found[j].diameter_m, coverage)
+            PipeMatch(t.name, t.fill, match, horizontal, depth, 2 * t.radius_m, found[match].diameter_m, coverage)
         )
     extras = [j for j in range(len(found)) if j not in used]
     return matches, extras

@@ -1,0 +1,208 @@
+"""The loosely coupled error-state EKF: IMU propagation, wheel and visual-odometry updates (filterpy).
+
+Frames (REP-103/105): `odom` is fixed to the start pose (x forward, y left, z up, gravity along −z);
+`base_link` is the robot body. The IMU and wheel samples arrive in base_link (the drivers rotate the
+sensors' axes once); VO arrives as base_link motion (see fusion.vo).
+
+Nominal state: position p (m, odom), velocity v (m/s, odom), attitude R = R_odom_base, gyro bias b_g
+(rad/s, base_link), accel bias b_a (m/s², base_link), per-wheel radius error s (fraction: the true
+radius is r·(1 + s_i)), and a clone (p_c, R_c) of the pose at the current VO keyframe.
+Error state (24, the vector filterpy's KalmanFilter holds): δp, δv, δθ (R = R̂ Exp(δθ)), δb_g, δb_a,
+δs, δp_c, δθ_c. Propagation is the standard ESKF (Solà, "Quaternion kinematics for the error-state
+Kalman filter", 2017, §5); VO is a relative-pose measurement between the clone and now (stochastic
+cloning, Roumeliotis & Burdick 2002); wheels measure the three rim speeds, 1st-order in δs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+from scipy.stats import chi2
+
+from gprbot.config import FusionConfig
+from gprbot.fusion.frames import VoMeasurement
+from gprbot.fusion.so3 import FloatArray, exp_so3, gravity_aligned, log_so3, orthonormalize, quat_to_matrix, skew
+from gprbot.motion.kinematics import KiwiKinematics, kiwi_matrix
+
+GRAVITY = np.array([0.0, 0.0, -9.80665])
+POS, VEL, ATT, BG, BA, WS, CPOS, CATT = (slice(i, i + 3) for i in range(0, 24, 3))
+DIM = 24
+
+
+class ErrorStateEkf:
+    """The filter proper: time-ordered calls only (PoseFuser does the ordering)."""
+
+    def __init__(self, config: FusionConfig, kinematics: KiwiKinematics) -> None:
+        self.config = config
+        self.kinematics = kinematics
+        self._drive = kiwi_matrix(kinematics.base_radius_m)  # rows (cos θ_i, sin θ_i, −d)
+        self.kf = KalmanFilter(dim_x=DIM, dim_z=6)
+        self.t = math.nan
+        self.p, self.v = np.zeros(3), np.zeros(3)
+        self.R = np.eye(3)
+        self.gyro_bias, self.accel_bias, self.wheel_scale = np.zeros(3), np.zeros(3), np.zeros(3)
+        self.clone_p, self.clone_R, self.clone_t = np.zeros(3), np.eye(3), math.nan
+        self.gyro, self.accel = np.zeros(3), -GRAVITY.copy()
+        self.floor_z = 0.0
+        self._held_since = math.nan  # inputs are integrated (held) from here on
+        self._sum_gyro, self._sum_accel = np.zeros(3), np.zeros(3)
+        self._F = np.eye(DIM)
+        self._I3 = np.eye(3)
+        c = config
+        self._q_rate = np.concatenate([
+            np.zeros(3), np.full(3, c.accel_noise_m_s2_sqrt_hz**2), np.full(3, c.gyro_noise_rad_s_sqrt_hz**2),
+            np.full(3, c.gyro_bias_walk_rad_s2_sqrt_hz**2), np.full(3, c.accel_bias_walk_m_s3_sqrt_hz**2),
+            np.full(3, c.wheel_scale_walk_per_sqrt_s**2), np.zeros(6),
+        ])
+        self._clone_map = np.eye(DIM)
+        self._clone_map[CPOS] = np.eye(DIM)[POS]
+        self._clone_map[CATT] = np.eye(DIM)[ATT]
+        self._gate = {m: float(chi2.ppf(c.gate_probability, m)) for m in (4, 5, 6)}
+        self.rejected_in_a_row: dict[str, int] = {"wheels": 0, "vo": 0}
+
+    @property
+    def initialized(self) -> bool:
+        """Whether `initialize` has run."""
+        return not math.isnan(self.t)
+
+    def initialize(self, t: float, mean_accel: FloatArray, mean_gyro: FloatArray, position: FloatArray,
+                   yaw: float) -> None:
+        """Start at rest: roll and pitch from gravity, gyro bias from the mean rate at rest, yaw given."""
+        self.R = gravity_aligned(mean_accel, yaw)
+        self.p, self.v = np.asarray(position, dtype=np.float64).copy(), np.zeros(3)
+        self.floor_z = float(self.p[2])
+        self.gyro_bias = np.asarray(mean_gyro, dtype=np.float64).copy()
+        self.accel_bias, self.wheel_scale = np.zeros(3), np.zeros(3)
+        self.gyro, self.accel, self.t = self.gyro_bias.copy(), np.asarray(mean_accel, dtype=np.float64).copy(), t
+        self._held_since = t
+        self._sum_gyro, self._sum_accel = np.zeros(3), np.zeros(3)
+        c = self.config
+        tilt, yaw_std = math.radians(c.initial_tilt_std_deg), math.radians(c.initial_yaw_std_deg)
+        std = np.concatenate([
+            np.full(3, c.initial_position_std_m), np.full(3, c.initial_velocity_std_m_s), [tilt, tilt, yaw_std],
+            np.full(3, c.initial_gyro_bias_std_rad_s), np.full(3, c.initial_accel_bias_std_m_s2),
+            np.full(3, c.initial_wheel_scale_std), np.full(6, 1e-6),
+        ])
+        self.kf.x = np.zeros((DIM, 1))
+        self.kf.P = np.diag(std**2)
+        self.clone_t = math.nan
+
+    def add_imu(self, t: float, gyro: FloatArray | None, accel: FloatArray | None) -> None:
+        """Take an IMU reading at t (held until the next one); propagate once a step's worth has gathered."""
+        self._hold_until(t)
+        if gyro is not None:
+            self.gyro = np.asarray(gyro, dtype=np.float64)
+        if accel is not None:
+            self.accel = np.asarray(accel, dtype=np.float64)
+        if t - self.t >= self.config.propagation_step_s:
+            self.propagate_to(t)
+
+    def _hold_until(self, t: float) -> None:
+        dt = t - self._held_since
+        if dt > 0.0:
+            self._sum_gyro += self.gyro * dt
+            self._sum_accel += self.accel * dt
+            self._held_since = t
+
+    def propagate_to(self, t: float) -> None:
+        """Integrate the IMU readings (mean rate and specific force since the state time) up to t."""
+        self._hold_until(t)
+        dt = t - self.t
+        if dt <= 0.0:
+            return
+        omega = self._sum_gyro / dt - self.gyro_bias
+        acc_body = self._sum_accel / dt - self.accel_bias
+        self._sum_gyro, self._sum_accel = np.zeros(3), np.zeros(3)
+        acc = self.R @ acc_body + GRAVITY
+        step = exp_so3(omega * dt)
+        F = self._F.copy()
+        F[POS, VEL] = self._I3 * dt
+        F[VEL, ATT] = -self.R @ skew(acc_body) * dt
+        F[VEL, BA] = -self.R * dt
+        F[ATT, ATT] = step.T
+        F[ATT, BG] = self._I3 * -dt
+        self.kf.predict(F=F, Q=np.diag(self._q_rate * dt))
+        self.p = self.p + self.v * dt + 0.5 * acc * dt * dt
+        self.v = self.v + acc * dt
+        self.R = self.R @ step
+        self.t = t
+
+    def extrapolate(self, t: float) -> tuple[FloatArray, FloatArray]:
+        """Position and attitude at a time shortly after the state time, without touching the filter."""
+        dt = t - self.t
+        acc = self.R @ (self.accel - self.accel_bias) + GRAVITY
+        return self.p + self.v * dt + 0.5 * acc * dt * dt, self.R @ exp_so3((self.gyro - self.gyro_bias) * dt)
+
+    def update_wheels(self, speeds: FloatArray) -> bool:
+        """Rim speeds r·ω_i of the three wheels, zero vertical body speed and the floor's height; False if gated.
+
+        The last two are pseudo-measurements of a robot on a level slab: without them pitch and the
+        accelerometer's x bias cannot be told apart (the robot never turns), and a wrong pitch
+        would tilt every VO step into a climb.
+        """
+        c = self.config
+        v_body = self.R.T @ self.v
+        omega_z = float(self.gyro[2] - self.gyro_bias[2])
+        rim_true = self._drive @ np.array([v_body[0], v_body[1], omega_z])
+        gain = 1.0 - self.wheel_scale
+        directions = np.column_stack([self._drive[:, :2], np.zeros(3)])
+        H = np.zeros((5, DIM))
+        H[:3, VEL] = gain[:, None] * (directions @ self.R.T)
+        H[:3, ATT] = gain[:, None] * (directions @ skew(v_body))
+        H[:3, BG.start + 2] = gain * self.kinematics.base_radius_m
+        H[:3, WS] = np.diag(-rim_true)
+        H[3, VEL] = self.R[:, 2]
+        H[3, ATT] = skew(v_body)[2]
+        H[4, POS.start + 2] = 1.0
+        rim = np.asarray(speeds, dtype=np.float64) * self.kinematics.wheel_radius_m
+        measured = np.concatenate([rim, [0.0, self.floor_z]])
+        predicted = np.concatenate([gain * rim_true, [v_body[2], self.p[2]]])
+        variance = np.concatenate([c.wheel_rim_speed_std_m_s**2 + (c.wheel_slip_std * rim) ** 2,
+                                   [c.vertical_speed_std_m_s**2, c.floor_height_std_m**2]])
+        rows = slice(0, 5) if c.floor_height_std_m > 0.0 else slice(0, 4)
+        return self._update("wheels", (measured - predicted)[rows], H[rows], np.diag(variance[rows]))
+
+    def update_vo(self, m: VoMeasurement) -> str:
+        """Apply a keyframe-relative VO motion; 'applied', 'rejected' (gated) or 'skipped' (no clone at t_ref)."""
+        if math.isnan(self.clone_t) or abs(self.clone_t - m.t_ref) > 1e-6:
+            return "skipped"
+        c = self.config
+        rel_p = self.clone_R.T @ (self.p - self.clone_p)
+        rel_R = self.clone_R.T @ self.R
+        residual = np.concatenate([m.translation - rel_p, log_so3(rel_R.T @ quat_to_matrix(m.rotation))])
+        H = np.zeros((6, DIM))
+        H[:3, POS], H[:3, CPOS], H[:3, CATT] = self.clone_R.T, -self.clone_R.T, skew(rel_p)
+        H[3:, ATT], H[3:, CATT] = np.eye(3), -rel_R.T
+        floor = np.concatenate([np.full(3, c.vo_translation_floor_m**2), np.full(3, c.vo_rotation_floor_rad**2)])
+        R_meas = c.vo_covariance_scale * 0.5 * (m.covariance + m.covariance.T) + np.diag(floor)
+        return "applied" if self._update("vo", residual, H, R_meas) else "rejected"
+
+    def clone(self) -> None:
+        """Remember the current pose (and its correlations) as the reference of the next VO measurement."""
+        self.clone_p, self.clone_R, self.clone_t = self.p.copy(), self.R.copy(), self.t
+        self.kf.P = self._clone_map @ self.kf.P @ self._clone_map.T
+
+    def _update(self, sensor: str, residual: FloatArray, H: FloatArray, R_meas: FloatArray) -> bool:
+        saved = self.kf.P.copy()
+        self.kf.update(residual.reshape(-1, 1), R=R_meas, H=H)
+        gate = self._gate[residual.size]
+        if self.kf.mahalanobis**2 > gate and self.rejected_in_a_row[sensor] < self.config.max_consecutive_rejections:
+            self.kf.P, self.kf.x = saved, np.zeros((DIM, 1))
+            self.rejected_in_a_row[sensor] += 1
+            return False
+        self.rejected_in_a_row[sensor] = 0
+        self._inject(self.kf.x.ravel())
+        return True
+
+    def _inject(self, dx: FloatArray) -> None:
+        self.p = self.p + dx[POS]
+        self.v = self.v + dx[VEL]
+        self.R = orthonormalize(self.R @ exp_so3(dx[ATT]))
+        self.gyro_bias = self.gyro_bias + dx[BG]
+        self.accel_bias = self.accel_bias + dx[BA]
+        self.wheel_scale = self.wheel_scale + dx[WS]
+        self.clone_p = self.clone_p + dx[CPOS]
+        self.clone_R = self.clone_R @ exp_so3(dx[CATT])
+        self.kf.x = np.zeros((DIM, 1))

@@ -1,0 +1,161 @@
+"""The pose estimator's front end: time ordering, routing of sensor messages, Pose output, pose_at(t).
+
+Late and out-of-order messages are handled by a fixed-latency reorder buffer: every message waits
+until the newest timestamp seen is `reorder_window_s` past it, and messages are then processed in
+timestamp order (IMU before wheels before VO at equal times). Anything that arrives later than the
+window is dropped and counted — it would otherwise need the past re-filtered. The price is that
+output poses trail the newest sensor data by the window (0.1 s by default); traces are tagged after
+the fact through `pose_at`, so this costs the survey nothing. Pure: time comes from the messages.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections import deque
+from dataclasses import dataclass
+from itertools import count
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.config import FusionConfig, MotorsConfig
+from gprbot.errors import GprbotError
+from gprbot.fusion.ekf import ErrorStateEkf
+from gprbot.fusion.frames import VoMeasurement
+from gprbot.fusion.interpolate import interpolate_poses
+from gprbot.fusion.so3 import matrix_to_quat, yaw_of
+from gprbot.messages import ImuSample, Pose, WheelSpeeds
+from gprbot.motion.kinematics import KiwiKinematics
+
+SensorMessage = ImuSample | WheelSpeeds | VoMeasurement
+_PRIORITY = {ImuSample: 0, WheelSpeeds: 1, VoMeasurement: 2}
+
+
+@dataclass
+class FusionStats:
+    """What the filter did with its input (for health reports and tests)."""
+
+    imu: int = 0
+    wheel_updates: int = 0
+    wheel_rejected: int = 0
+    vo_updates: int = 0
+    vo_rejected: int = 0
+    vo_skipped: int = 0
+    vo_lost: int = 0
+    late_dropped: int = 0
+
+
+class PoseFuser:
+    """Feed sensor messages with `push`; get base_link poses in odom at `output_rate_hz`."""
+
+    def __init__(self, config: FusionConfig | None = None, motors: MotorsConfig | None = None,
+                 initial_position: tuple[float, float, float] = (0.0, 0.0, 0.0), initial_yaw_rad: float = 0.0) -> None:
+        self.config = config or FusionConfig()
+        self.ekf = ErrorStateEkf(self.config, KiwiKinematics.from_config(motors or MotorsConfig()))
+        self.stats = FusionStats()
+        self._initial = (np.asarray(initial_position, dtype=np.float64), initial_yaw_rad)
+        self._heap: list[tuple[float, int, int, SensorMessage]] = []
+        self._seq = count()
+        self._newest = -math.inf
+        self._released = -math.inf
+        self._init_gyro: list[NDArray[np.float64]] = []
+        self._init_accel: list[NDArray[np.float64]] = []
+        self._init_start = math.nan
+        self._next_tick = math.nan
+        self.history: deque[Pose] = deque(maxlen=max(2, int(self.config.history_s * self.config.output_rate_hz)))
+
+    def push(self, message: SensorMessage) -> list[Pose]:
+        """Queue one message; the output poses that became final."""
+        key = message.t - self.config.wheel_speed_delay_s if isinstance(message, WheelSpeeds) else message.t
+        if key < self._released:
+            self.stats.late_dropped += 1
+            return []
+        heapq.heappush(self._heap, (key, _PRIORITY[type(message)], next(self._seq), message))
+        self._newest = max(self._newest, key)
+        return self._release(self._newest - self.config.reorder_window_s)
+
+    def flush(self) -> list[Pose]:
+        """Process everything still queued (end of a run)."""
+        return self._release(math.inf)
+
+    def pose_at(self, t: NDArray[np.float64] | float) -> list[Pose]:
+        """Interpolated poses at times within the kept output history."""
+        times = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        poses = list(self.history)
+        if len(poses) < 2:
+            raise GprbotError("no pose history yet: the filter needs IMU data (and a moment at rest) first")
+        stamps = np.array([p.t for p in poses])
+        lo = min(max(int(np.searchsorted(stamps, times.min(), side="right")) - 1, 0), len(poses) - 2)
+        hi = max(int(np.searchsorted(stamps, times.max(), side="left")) + 1, lo + 2)
+        return interpolate_poses(poses[lo:hi], times)
+
+    def _release(self, horizon: float) -> list[Pose]:
+        out: list[Pose] = []
+        while self._heap and self._heap[0][0] <= horizon:
+            key, _, _, message = heapq.heappop(self._heap)
+            self._released = key
+            out.extend(self._process(key, message))
+        return out
+
+    def _process(self, t: float, message: SensorMessage) -> list[Pose]:
+        ekf = self.ekf
+        if not ekf.initialized:
+            self._collect_initial(message)
+            return []
+        out = self._emit_ticks(t)
+        if isinstance(message, ImuSample):
+            self.stats.imu += 1
+            ekf.add_imu(t, message.gyro, message.accel)
+            return out
+        ekf.propagate_to(t)
+        if isinstance(message, WheelSpeeds):
+            accepted = ekf.update_wheels(message.speeds)
+            self.stats.wheel_updates += accepted
+            self.stats.wheel_rejected += not accepted
+        else:
+            self._process_vo(message)
+        return out
+
+    def _process_vo(self, m: VoMeasurement) -> None:
+        if m.status == "ok":
+            result = self.ekf.update_vo(m)
+            self.stats.vo_updates += result == "applied"
+            self.stats.vo_rejected += result == "rejected"
+            self.stats.vo_skipped += result == "skipped"
+        elif m.status == "lost":
+            self.stats.vo_lost += 1
+        if m.new_keyframe:
+            self.ekf.clone()
+
+    def _emit_ticks(self, t: float) -> list[Pose]:
+        """The output poses due up to t (extrapolated from the state, which trails by < one IMU step)."""
+        ekf, out = self.ekf, []
+        period = 1.0 / self.config.output_rate_hz
+        while self._next_tick <= t:
+            position, attitude = ekf.extrapolate(self._next_tick)
+            out.append(Pose(self._next_tick, position, matrix_to_quat(attitude)))
+            self._next_tick = round((self._next_tick + period) / period) * period
+        self.history.extend(out)
+        return out
+
+    def _collect_initial(self, message: SensorMessage) -> None:
+        if not isinstance(message, ImuSample):
+            return
+        if math.isnan(self._init_start):
+            self._init_start = message.t
+        if message.gyro is not None:
+            self._init_gyro.append(np.asarray(message.gyro, dtype=np.float64))
+        if message.accel is not None:
+            self._init_accel.append(np.asarray(message.accel, dtype=np.float64))
+        if message.t - self._init_start >= self.config.init_duration_s and self._init_gyro and self._init_accel:
+            position, yaw = self._initial
+            gyro_bias = np.mean(self._init_gyro, axis=0) if self.config.gyro_bias_from_rest else np.zeros(3)
+            self.ekf.initialize(message.t, np.mean(self._init_accel, axis=0), gyro_bias, position, yaw)
+            period = 1.0 / self.config.output_rate_hz
+            self._next_tick = math.ceil(message.t / period - 1e-9) * period
+
+    @property
+    def yaw_rad(self) -> float:
+        """Current heading estimate (rad) in odom."""
+        return yaw_of(self.ekf.R)
