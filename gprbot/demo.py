@@ -13,9 +13,9 @@ from gprbot.config import Config, to_dict
 from gprbot.evaluation import PipeMatch, compare_to_truth, format_truth_table, within_bounds
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
 from gprbot.infer.run_files import write_survey_outputs
-from gprbot.sim.truth import cross_section_mask
 from gprbot.sim.scene import Scene
 from gprbot.sim.survey_sim import simulate_survey
+from gprbot.sim.truth import cross_section_mask
 from gprbot.survey import assemble_bscan, line_windows, split_by_line
 
 
