@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 .PHONY: demo test lint bench bootstrap clean
 
 bootstrap:
-	@VENV=$(VENV) scripts/bootstrap.sh
+	@VENV=$(VENV) EXTRAS=train scripts/bootstrap.sh
 
 demo: bootstrap
 	$(BIN)/gprbot demo --out runs/demo

@@ -7,7 +7,7 @@ so that a simulated run and a run on the robot go through the same code.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +18,7 @@ from gprbot.gpr.bscan import BScan
 from gprbot.gpr.interpret import CrossSection, estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
+from gprbot.gpr.velocity import CrossingHint
 from gprbot.infer.completion import Reconstruction, geometric_completion
 from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
 
@@ -44,24 +45,20 @@ class SurveyResult:
     timings_s: dict[str, float] = field(default_factory=dict)
 
 
-def column_positions(bscan: BScan, x_m: NDArray[np.float64]) -> NDArray[np.float64]:
-    """3D antenna positions (nx, 3) of cross-section columns given in along-track metres."""
-    along = bscan.along_track_m()
-    return np.stack([np.interp(x_m, along, bscan.positions[:, k]) for k in range(3)], axis=1)
-
-
-def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool]:
-    """The wave velocity for the whole survey: from the configured eps_r, else from all hyperbolas."""
-    if cfg.gpr.eps_r is not None:
-        return velocity_from_eps(cfg.gpr.eps_r), False
+def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool, tuple[CrossingHint, ...]]:
+    """The survey's wave velocity (configured eps_r, else all hyperbolas) and the pipes' crossing angles."""
     estimate = estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
-    return float(estimate.v), True
+    if cfg.gpr.eps_r is not None:
+        return velocity_from_eps(cfg.gpr.eps_r), False, estimate.crossings
+    return float(estimate.v), True, estimate.crossings
 
 
-def interpret_line(line: int, processed: BScan, cfg: Config, velocity: float) -> LineResult:
+def interpret_line(
+    line: int, processed: BScan, cfg: Config, velocity: float, hints: Sequence[CrossingHint] = ()
+) -> LineResult:
     """Interpret one preprocessed line and register its cross-section in 3D."""
-    section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity)
-    cols = column_positions(processed, section.x_m)
+    section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
+    cols = processed.position_at(section.x_m)
     return LineResult(line, processed, section, register_slice(line, section.mask, section.z_m, cols))
 
 
@@ -73,11 +70,11 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     timings["preprocess"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    velocity, estimated = survey_velocity(processed, cfg)
+    velocity, estimated, hints = survey_velocity(processed, cfg)
     timings["velocity"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    lines = tuple(interpret_line(line, b, cfg, velocity) for line, b in processed.items())
+    lines = tuple(interpret_line(line, b, cfg, velocity, hints) for line, b in processed.items())
     timings["interpret"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
