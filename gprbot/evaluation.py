@@ -110,22 +110,23 @@ def compare_to_truth(
 
 def format_truth_table(matches: Sequence[PipeMatch], extras: Sequence[int], found: Sequence[PipeModel]) -> str:
     """A plain-text table of found vs true pipes, as `gprbot demo` prints it."""
-    head = f"{'pipe':<14}{'fill':<10}{'found':>6}{'horiz cm':>10}{'depth cm':>10}{'diam true':>11}"
+    width = max([20, *(len(m.truth) + 2 for m in matches)])
+    head = f"{'pipe':<{width}}{'fill':<11}{'found':>6}{'horiz cm':>10}{'depth cm':>10}{'diam true':>11}"
     head += f"{'diam found':>12}{'diam err':>10}{'coverage':>10}"
     rows = [head, "-" * len(head)]
     for m in matches:
         if m.found is None:
-            rows.append(f"{m.truth:<14}{m.fill:<10}{'MISSED':>6}")
+            rows.append(f"{m.truth:<{width}}{m.fill:<11}{'MISSED':>6}")
             continue
         rows.append(
-            f"{m.truth:<14}{m.fill:<10}{m.found:>6}{100 * m.horizontal_err_m:>10.1f}{100 * m.depth_err_m:>10.1f}"
+            f"{m.truth:<{width}}{m.fill:<11}{m.found:>6}{100 * m.horizontal_err_m:>10.1f}{100 * m.depth_err_m:>10.1f}"
             f"{100 * m.true_diameter_m:>9.1f}cm{100 * m.found_diameter_m:>10.1f}cm{100 * m.diameter_err_rel:>9.0f}%"
             f"{100 * m.coverage:>9.0f}%"
         )
     for j in extras:
         f = found[j]
         rows.append(
-            f"{'(extra)':<14}{'':<10}{j:>6}  axis from ({f.axis[0][0]:.2f}, {f.axis[0][1]:.2f}) "
+            f"{'(extra)':<{width}}{'':<11}{j:>6}  axis from ({f.axis[0][0]:.2f}, {f.axis[0][1]:.2f}) "
             f"to ({f.axis[-1][0]:.2f}, {f.axis[-1][1]:.2f}) m, depth {f.axis[:, 2].mean():.2f} m, "
             f"diameter {100 * f.diameter_m:.1f} cm"
         )

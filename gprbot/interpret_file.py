@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 
 from gprbot.config import GprConfig, InterpretationConfig, load_config
-from gprbot.errors import DataFormatError
+from gprbot.errors import DataFormatError, InterpretationError
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.dzt import DztHeader, read_dzt
 from gprbot.gpr.interpret import interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
+from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.infer.outputs import write_json_atomic
 
 # GSSI antenna model numbers → centre frequency (MHz), from GSSI's antenna catalogue.
@@ -88,13 +89,24 @@ def interpret_dzt(
 ) -> str:
     """Interpret a DZT file, write detections.json and PNGs, and return a printable report."""
     cfg = load_config()
+    notes: list[str] = []
     bscan, header = dzt_bscan(path, channel, spacing_m)
     gpr = gpr_config_for(header, cfg.gpr, frequency_mhz)
     interp: InterpretationConfig = cfg.interpretation
     out = out_dir or Path(cfg.runs_dir) / time.strftime(f"interpret-{path.stem}-%Y%m%d-%H%M%S")
     out.mkdir(parents=True, exist_ok=True)
+    # The time window sets how deep the section can reach; the 0.6 m default suits a slab at 900 MHz.
+    v_guess = velocity or velocity_from_eps(header.eps_r if header.eps_r > 1 else 6.0)
+    interp = replace(interp, depth_max_m=0.5 * v_guess * header.range_ns)
     processed = preprocess(bscan, gpr)
-    section = interpret_bscan(processed, gpr, interp, velocity)
+    try:
+        section = interpret_bscan(processed, gpr, interp, velocity)
+    except InterpretationError as exc:
+        if velocity is not None or header.eps_r <= 1:
+            raise
+        # No hyperbola to measure the velocity on: fall back to the permittivity the operator set.
+        notes.append(f"velocity not estimated ({exc}); used the header's eps_r {header.eps_r:g}")
+        section = interpret_bscan(processed, gpr, interp, velocity_from_eps(header.eps_r))
     detections = [
         {"x_m": d.x_m, "depth_m": d.depth_m, "radius_m": d.radius_m, "score": d.score} for d in section.detections
     ]
@@ -110,6 +122,7 @@ def interpret_dzt(
             "x_origin": "the first trace",
             "depth_origin": "the ground surface (depth of the pipe's centre, positive down)",
             "detections": detections,
+            "notes": notes,
         },
     )
     write_bscan_png(out / "bscan.png", processed)
@@ -124,5 +137,6 @@ def interpret_dzt(
         f"score {d['score']:.2f}"
         for d in detections
     ]
+    lines += [f"note: {n}" for n in notes]
     lines.append(f"written: {out}/detections.json, bscan.png, section.png")
     return "\n".join(lines)
