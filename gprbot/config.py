@@ -123,13 +123,14 @@ class GprDeviceConfig:
 
     host: str = "sim"  # "sim": the SDK-mode emulator on loopback; else the NIC's address
     http_port: int = 8080
-    data_port: int = 8081
+    data_port: int = 8081  # fallback only: the driver asks the NIC for its port (api/nic/gpr/data_socket)
     points_per_trace: int = 512
-    time_sampling_interval_ps: float = 23.4375
+    time_sampling_interval_ps: float = 23.4375  # sim grid (12 ns / 512); a real NIC takes 50..6400 in steps of 50
     stacks: int = 4
-    window_shift_ns: float = -1.0
+    window_shift_ns: float = -1.0  # relative to the unit's calibrated reference: time zero lands 1 ns into the trace
     trigger_period_s: float = 0.01
     connect_timeout_s: float = 2.0
+    stall_timeout_s: float = 1.0  # no data this long: reported as a stall, data socket reopened
 
 
 @dataclass(frozen=True)
