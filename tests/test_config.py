@@ -47,3 +47,15 @@ def test_bad_yaml_and_missing_file() -> None:
         parse_config("gpr: [unclosed\n")
     with pytest.raises(ConfigError, match="cannot read config file"):
         load_config("/nonexistent/gprbot.yaml")
+
+
+def test_robot_config_loads_and_points_at_real_devices() -> None:
+    from pathlib import Path
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "robot.yaml")
+    assert cfg.motors.port.startswith("/dev/serial/")
+    assert cfg.gpr_device.host != "sim" and cfg.realsense.source == "device"
+    # The acquisition grid the NIC accepts must match the processing's time axis.
+    assert cfg.gpr.samples == cfg.gpr_device.points_per_trace
+    assert cfg.gpr.time_window_ns == pytest.approx(cfg.gpr.samples * cfg.gpr_device.time_sampling_interval_ps / 1000)
+    assert cfg.survey.trace_rate_hz == pytest.approx(1 / cfg.gpr_device.trigger_period_s)
