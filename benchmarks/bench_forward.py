@@ -7,26 +7,15 @@ Prints the median over several runs of the time per survey and the traces per se
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import time
 
 import numpy as np
 
+from benchmarks.machine import machine_description
 from gprbot.config import GprConfig
 from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.scene import builtin_scene_names, load_scene
-
-
-def machine_description() -> str:
-    """Platform, CPU and library versions, for reading the figures."""
-    cpu = platform.processor() or platform.machine()
-    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return (
-        f"{platform.platform()} | CPU {cpu}, {os.cpu_count()} logical CPUs ({affinity} usable) | "
-        f"Python {platform.python_version()}, numpy {np.__version__}"
-    )
 
 
 def survey_lines(lines: int, traces_per_line: int) -> list[np.ndarray]:

@@ -14,7 +14,6 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # one core: set before numpy loads its BLAS
 
-import platform  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
@@ -22,6 +21,7 @@ from collections.abc import Callable  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks.machine import machine_description as describe_machine  # noqa: E402
 from gprbot.config import FusionConfig  # noqa: E402
 from gprbot.fusion.ekf import ErrorStateEkf  # noqa: E402
 from gprbot.fusion.frames import VoMeasurement  # noqa: E402
@@ -36,16 +36,9 @@ from gprbot.sim.motion_truth import jog_ground_truth  # noqa: E402
 
 
 def machine_description() -> str:
-    """Platform, CPU model, load and library versions, for reading the figures."""
-    model = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as info:
-            model = next(line.split(":", 1)[1].strip() for line in info if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return (f"{platform.platform()} | {model}, {os.cpu_count()} logical CPUs, load {load:.1f} | Python "
-            f"{platform.python_version()}, numpy {np.__version__}, OpenCV {cv2.__version__} (1 thread)")
+    """The machine, with the OpenCV version."""
+    return describe_machine(f"OpenCV {cv2.__version__} (1 thread)")
+
 
 
 def median_us(step: Callable[[], object], repeats: int) -> float:

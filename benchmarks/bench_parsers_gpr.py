@@ -10,13 +10,12 @@ robot survey runs at 100-400). Run: `.venv/bin/python -m benchmarks.bench_parser
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import time
 
 import numpy as np
 
+from benchmarks.machine import machine_description
 from gprbot.drivers.gpr.protocol import TraceFrame, TraceStreamParser, encode_frame
 
 DEVICE_MAX_RATE_HZ = 800.0  # 1 / 0.00125 s, the shortest trigger period of api/nic/setup
@@ -24,17 +23,6 @@ SURVEY_RATE_HZ = 100.0  # survey.trace_rate_hz of the default config
 STACKS = 4
 
 
-def machine_description() -> str:
-    """Platform, CPU and library versions, for reading the figures."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return (f"{platform.platform()} | {cpu}, {os.cpu_count()} logical CPUs ({usable} usable) | "
-            f"Python {platform.python_version()}, numpy {np.__version__}")
 
 
 def make_stream(samples: int, traces: int, noise_every: int | None) -> bytes:

@@ -13,8 +13,6 @@ import argparse
 import asyncio
 import contextlib
 import dataclasses
-import os
-import platform
 import statistics
 import tempfile
 import time
@@ -23,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.machine import machine_description
 from gprbot.config import MotorsConfig
 from gprbot.drivers.motors import protocol as rc
 from gprbot.drivers.motors import replies
@@ -36,14 +35,6 @@ NEED_REPLIES_PER_S = 3 * 2 * 50
 CFG = MotorsConfig(command_timeout_s=0.02, retries=2, failsafe_timeout_s=0.1, max_wheel_accel_rad_s2=400.0)
 
 
-def machine_description() -> str:
-    """Platform, CPU and Python, for reading the figures."""
-    cpu = platform.processor() or platform.machine()
-    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return (
-        f"{platform.platform()} | CPU {cpu}, {os.cpu_count()} logical CPUs ({affinity} usable) | "
-        f"Python {platform.python_version()}"
-    )
 
 
 def median_rate(work: Callable[[], int], repeats: int) -> float:

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
-import platform
 import statistics
 import tempfile
 import threading
@@ -24,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.machine import machine_description as describe_machine
 from gprbot.config import RealsenseConfig
 from gprbot.drivers.realsense.driver import RawRgbdFrame, RealsenseDriver
 from gprbot.drivers.realsense.recording import SoftwareD435i, write_recording
@@ -34,16 +33,11 @@ IMU_HZ, FPS = 400 + 250, 30
 
 
 def machine_description() -> str:
-    """Platform, CPU, load and library versions, for reading the figures."""
+    """The machine, with the librealsense version."""
     import pyrealsense2 as rs
 
-    cpu = "unknown CPU"
-    with open("/proc/cpuinfo") as info:
-        cpu = next((line.split(":", 1)[1].strip() for line in info if line.startswith("model name")), cpu)
-    return (
-        f"{platform.platform()} | {cpu}, {os.cpu_count()} logical CPUs, load {os.getloadavg()[0]:.1f} | "
-        f"Python {platform.python_version()}, numpy {np.__version__}, librealsense {rs.__version__}"
-    )
+    return describe_machine(f"librealsense {rs.__version__}")
+
 
 
 class PrebuiltSource:
