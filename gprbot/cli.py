@@ -57,6 +57,18 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_shell(args: argparse.Namespace) -> int:
+    from gprbot.shell.interactive import run_shell
+
+    return run_shell(args)
+
+
+def _cmd_pull(args: argparse.Namespace) -> int:
+    from gprbot.shell.interactive import run_pull
+
+    return run_pull(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the `gprbot` command."""
     parser = argparse.ArgumentParser(prog="gprbot", description="GPR inspection robot: survey, interpret, model.")
@@ -84,6 +96,15 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
     interp.set_defaults(func=_cmd_interpret)
+
+    from gprbot.shell.interactive import add_pull_arguments, add_shell_arguments
+
+    shell = sub.add_parser("shell", help="talk to a robot's command shell (HOST[:PORT], --token-file)")
+    add_shell_arguments(shell)
+    shell.set_defaults(func=_cmd_shell)
+    pull = sub.add_parser("pull", help="download a run's files from a robot, sha256-checked")
+    add_pull_arguments(pull)
+    pull.set_defaults(func=_cmd_pull)
     return parser
 
 

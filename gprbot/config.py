@@ -211,6 +211,19 @@ class FusionConfig:
 
 
 @dataclass(frozen=True)
+class ShellConfig:
+    """The operator's command shell: TCP (token required beyond loopback) and an optional serial console."""
+
+    host: str = "127.0.0.1"
+    port: int = 7878
+    token_file: str | None = None  # a 0600 file owned by the daemon's user; required when host is not loopback
+    max_clients: int = 8
+    rate_per_s: float = 20.0
+    serial_console: str | None = None  # e.g. /dev/serial/by-id/usb-FTDI_...; None: no serial shell
+    serial_baudrate: int = 115200
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """The simulated world used when no hardware is attached."""
 
@@ -232,6 +245,7 @@ class Config:
     motors: MotorsConfig = field(default_factory=MotorsConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    shell: ShellConfig = field(default_factory=ShellConfig)
     gpr_device: GprDeviceConfig = field(default_factory=GprDeviceConfig)
     realsense: RealsenseConfig = field(default_factory=RealsenseConfig)
     runs_dir: str = "runs"

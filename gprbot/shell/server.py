@@ -1,0 +1,220 @@
+"""The shell's transports: a TCP server and a serial console, both running the same Session logic."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ipaddress
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import serial
+
+from gprbot.errors import ConfigError, DriverError
+from gprbot.shell.auth import load_token
+from gprbot.shell.commands import ErrorCode
+from gprbot.shell.handler import CommandHandler, EventBus, SessionInfo
+from gprbot.shell.protocol import Reply, encode_reply
+from gprbot.shell.session import Session, SessionLimits
+
+log = logging.getLogger(__name__)
+
+
+def is_loopback(host: str) -> bool:
+    """True for addresses only this machine can reach (127.0.0.0/8, ::1, 'localhost')."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a host name or '' (all interfaces): assume reachable from outside
+
+
+class ShellServer:
+    """The TCP shell. A token file is required unless it listens on loopback only."""
+
+    def __init__(
+        self,
+        handler: CommandHandler,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 7878,
+        token_file: str | Path | None = None,
+        max_clients: int = 8,
+        max_line: int = 256,
+        rate_per_s: float = 20.0,
+        events: EventBus | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.host, self.port = host, port
+        self.events = events if events is not None else EventBus()
+        self.max_clients = max_clients
+        self._handler, self._token_file, self._clock = handler, token_file, clock
+        self._limits = SessionLimits(max_line=max_line, rate_per_s=rate_per_s)
+        self._token: str | None = None
+        self._server: asyncio.Server | None = None
+        self._sessions: dict[int, Session] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._next_id = 1
+
+    @property
+    def client_count(self) -> int:
+        """Sessions currently connected."""
+        return len(self._sessions)
+
+    def broadcast(self, event: str) -> None:
+        """Send `* event` to every client of every transport sharing this server's bus."""
+        self.events.broadcast(event)
+
+    async def start(self) -> None:
+        """Load the token (if any), bind and start accepting; `.port` is then the bound port."""
+        if self._token_file is not None:
+            self._token = load_token(self._token_file)
+        elif not is_loopback(self.host):
+            raise ConfigError(
+                f"the shell would listen on {self.host!r} without a token; set a token file (mode 0600) "
+                "or listen on 127.0.0.1"
+            )
+        try:
+            self._server = await asyncio.start_server(self._on_connect, self.host, self.port)
+        except OSError as exc:
+            raise ConfigError(f"cannot listen on {self.host}:{self.port}: {exc}; is another gprbot running?") from exc
+        self.port = self._server.sockets[0].getsockname()[1]
+        log.info("shell listening on %s:%d (%s)", self.host, self.port, "token" if self._token else "no token")
+
+    async def close(self, grace_s: float = 1.0) -> None:
+        """Stop accepting, drop every client; sessions still inside a handler call after `grace_s` are cancelled."""
+        if self._server is not None:
+            self._server.close()
+        for session in list(self._sessions.values()):
+            session.close()
+        if self._tasks:
+            _, pending = await asyncio.wait(set(self._tasks), timeout=grace_s)
+            for task in pending:
+                task.cancel()
+            await asyncio.gather(*pending, return_exceptions=True)
+        if self._server is not None:
+            await self._server.wait_closed()
+            self._server = None
+
+    async def _on_connect(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._tasks.add(task)
+        peername = writer.get_extra_info("peername")
+        peer = f"{peername[0]}:{peername[1]}" if isinstance(peername, tuple) else str(peername)
+        try:
+            if len(self._sessions) >= self.max_clients:
+                log.warning("shell: refusing %s, %d clients already", peer, len(self._sessions))
+                text = f"too many clients (max {self.max_clients}); try again later"
+                writer.write(encode_reply(Reply.failure(ErrorCode.BUSY, text)))
+                with contextlib.suppress(ConnectionError, OSError):
+                    await writer.drain()
+                return
+            info = SessionInfo(self._next_id, "tcp", peer, authenticated=self._token is None)
+            self._next_id += 1
+            session = Session(
+                self._handler, info, reader, writer, self.events,
+                token=self._token, limits=self._limits, clock=self._clock,
+            )
+            self._sessions[info.id] = session
+            log.info("shell: %s connected (session %d)", peer, info.id)
+            try:
+                await session.run()
+            finally:
+                del self._sessions[info.id]
+                log.info("shell: %s disconnected", peer)
+        finally:
+            writer.close()
+            with contextlib.suppress(ConnectionError, OSError):
+                await writer.wait_closed()
+            self._tasks.discard(task)
+
+
+@dataclass
+class _SerialLink:
+    port: serial.SerialBase
+    reader: asyncio.StreamReader
+    writer: asyncio.StreamWriter
+    read_transport: asyncio.ReadTransport
+
+
+class SerialShell:
+    """The shell on a serial console (physical access: no token). Re-opens the port after a hang-up."""
+
+    def __init__(
+        self,
+        handler: CommandHandler,
+        port_url: str,
+        *,
+        baudrate: int = 115200,
+        events: EventBus | None = None,
+        max_line: int = 256,
+        rate_per_s: float = 20.0,
+        reopen_s: float = 2.0,
+    ) -> None:
+        self.port_url, self.baudrate, self.reopen_s = port_url, baudrate, reopen_s
+        self.events = events if events is not None else EventBus()
+        self._handler = handler
+        self._limits = SessionLimits(max_line=max_line, rate_per_s=rate_per_s)
+        self._task: asyncio.Task[None] | None = None
+        self._session: Session | None = None
+        self._sessions_started = 0
+
+    async def start(self) -> None:
+        """Open the port (DriverError if it cannot be opened now) and serve it until close()."""
+        first = await self._open()
+        self._task = asyncio.create_task(self._serve(first), name=f"serial-shell-{self.port_url}")
+
+    async def close(self) -> None:
+        """Stop serving and close the port."""
+        if self._task is None:
+            return
+        self._task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self._task
+        self._task = None
+
+    async def _open(self) -> _SerialLink:
+        try:
+            port = serial.serial_for_url(self.port_url, baudrate=self.baudrate, timeout=0)
+            fd = port.fileno()
+        except (serial.SerialException, ValueError, OSError, AttributeError, NotImplementedError) as exc:
+            raise DriverError(f"cannot open serial console {self.port_url}: {exc}; check the path") from exc
+        loop = asyncio.get_running_loop()
+        reader = asyncio.StreamReader(limit=self._limits.max_line * 4)
+        # separate fds: each pipe transport owns and closes its file object
+        read_file = os.fdopen(os.dup(fd), "rb", buffering=0)
+        write_file = os.fdopen(os.dup(fd), "wb", buffering=0)
+        read_transport, _ = await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), read_file)
+        write_transport, write_protocol = await loop.connect_write_pipe(
+            lambda: asyncio.StreamReaderProtocol(asyncio.StreamReader()), write_file
+        )
+        writer = asyncio.StreamWriter(write_transport, write_protocol, reader, loop)
+        return _SerialLink(port, reader, writer, read_transport)
+
+    async def _serve(self, opened: _SerialLink | None) -> None:
+        while True:
+            if opened is None:
+                try:
+                    opened = await self._open()
+                except DriverError as exc:
+                    log.warning("%s; retrying in %g s", exc, self.reopen_s)
+                    await asyncio.sleep(self.reopen_s)
+                    continue
+            self._sessions_started += 1
+            info = SessionInfo(-self._sessions_started, "serial", self.port_url, authenticated=True)
+            self._session = Session(self._handler, info, opened.reader, opened.writer, self.events, limits=self._limits)
+            try:
+                await self._session.run()
+            finally:
+                self._session.close()
+                opened.read_transport.close()
+                opened.port.close()
+            log.warning("serial console %s hung up; re-opening in %g s", self.port_url, self.reopen_s)
+            opened = None
+            await asyncio.sleep(self.reopen_s)
