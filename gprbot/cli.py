@@ -57,6 +57,18 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from gprbot.config import load_config
+    from gprbot.replay import replay_run
+
+    run_dir = Path(args.run)
+    out = Path(args.out) if args.out else run_dir / "replay"
+    cfg = load_config(args.config) if args.config else None
+    result = replay_run(run_dir, out, cfg)
+    print(f"replayed {run_dir}: {len(result.lines)} lines, {len(result.reconstruction.pipes)} pipes; results: {out}")
+    return 0
+
+
 def _cmd_shell(args: argparse.Namespace) -> int:
     from gprbot.shell.interactive import run_shell
 
@@ -96,6 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
     interp.set_defaults(func=_cmd_interpret)
+
+    replay = sub.add_parser("replay", help="reprocess a recorded run offline (fusion + interpretation)")
+    replay.add_argument("run", help="the run directory (holding log-000.msgpack ...)")
+    replay.add_argument("--out", help="where to write the results (default: RUN/replay)")
+    replay.add_argument("--config", help="override the config recorded in the run's header")
+    replay.set_defaults(func=_cmd_replay)
 
     from gprbot.shell.interactive import add_pull_arguments, add_shell_arguments
 
