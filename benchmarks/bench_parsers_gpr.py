@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from benchmarks.machine import machine_description
-from gprbot.drivers.gpr.protocol import TraceFrame, TraceStreamParser, encode_frame
+from gprbot.drivers.gpr.trace_stream import TraceFrame, TraceStreamParser, encode_frame
 
 DEVICE_MAX_RATE_HZ = 800.0  # 1 / 0.00125 s, the shortest trigger period of api/nic/setup
 SURVEY_RATE_HZ = 100.0  # survey.trace_rate_hz of the default config

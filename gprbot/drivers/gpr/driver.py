@@ -1,9 +1,10 @@
 """Asyncio driver of the SPIDAR NIC-500 in SDK mode: control over HTTP/JSON, traces from the data socket.
 
-The driver only moves bytes and converts time; framing, the API's JSON and the mapping of the config to
-the NIC's setup live in `protocol`. Once started it keeps itself alive: when either socket drops or the
-stream stalls it reconnects with exponential backoff, re-running the setup only if the NIC stopped
-acquiring (a power cycle). Traces already queued are never lost, and numbers never repeat.
+The driver only moves bytes and converts time; framing lives in `trace_stream`, the API's JSON and the
+mapping of the config to the NIC's setup in `sdk_api`, the HTTP client and the clock in `sdk_client`.
+Once started it keeps itself alive: when either socket drops or the stream stalls it reconnects with
+exponential backoff, re-running the setup only if the NIC stopped acquiring (a power cycle). Traces
+already queued are never lost, and numbers never repeat.
 """
 
 from __future__ import annotations
@@ -12,162 +13,39 @@ import asyncio
 import contextlib
 import dataclasses
 import time
-from collections.abc import AsyncGenerator, Awaitable, Callable, Mapping
+from collections.abc import AsyncGenerator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
 from gprbot.config import GprDeviceConfig
-from gprbot.drivers.gpr.protocol import (
-    ACQUISITION_START,
-    ACQUISITION_STOP,
-    API_IDENTITY,
-    POWER_ALL_ON,
-    RESOURCE_ACQUISITION,
-    RESOURCE_DATA_SOCKET,
-    RESOURCE_DATA_SOCKET_RESET,
-    RESOURCE_GPR_INFO,
-    RESOURCE_NIC_INFO,
-    RESOURCE_POWER,
-    RESOURCE_ROOT,
-    RESOURCE_SETUP,
-    AcquisitionSetup,
-    ApiReply,
-    DeviceRejectedError,
+from gprbot.drivers.gpr import sdk_api as api
+from gprbot.drivers.gpr.sdk_client import READ_CHUNK, DeviceClock, SdkHttpClient
+from gprbot.drivers.gpr.trace_stream import (
     DuplicateTrace,
-    HttpResponse,
-    HttpResponseParser,
     Resync,
     TraceCounter,
     TraceEvent,
     TraceFrame,
     TraceGap,
     TraceStreamParser,
-    api_form,
-    build_request,
-    first_break_ns,
-    parse_api_reply,
-    parse_data_port,
-    parse_identity,
-    parse_setup,
-    parse_state,
-    parse_window_reference_ps,
-    setup_from_config,
-    setup_payload,
 )
 from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.errors import DriverError, GprbotError, ProtocolError
 from gprbot.messages import Trace
+
+__all__ = [
+    "BACKOFF_INITIAL_S", "BACKOFF_MAX_S", "MIN_STALL_TIMEOUT_S", "QUEUE_SIZE", "READ_CHUNK", "STALL_PERIODS",
+    "DeviceClock", "GprDriver", "GprLinkStats", "SdkHttpClient", "Sleep",
+]
 
 Sleep = Callable[[float], Awaitable[None]]
 
 BACKOFF_INITIAL_S = 0.1
 BACKOFF_MAX_S = 5.0
 QUEUE_SIZE = 1024  # traces buffered for a slow consumer; beyond it TCP backpressure reaches the NIC
-READ_CHUNK = 64 * 1024
 # With no explicit stall timeout: this many trigger periods, but never less than MIN_STALL_TIMEOUT_S.
 STALL_PERIODS = 50
 MIN_STALL_TIMEOUT_S = 1.0
-
-
-class SdkHttpClient:
-    """A minimal HTTP/1.1 client of the SDK API: one connection per request, a timeout on each."""
-
-    def __init__(self, host: str, port: int, timeout_s: float):
-        self.host, self.port, self.timeout_s = host, port, timeout_s
-        self.url = f"http://{host}:{port}"
-
-    async def get(self, resource: str) -> ApiReply:
-        """GET a resource."""
-        return await self._request("GET", resource, None)
-
-    async def put(self, resource: str, payload: Mapping[str, Any]) -> ApiReply:
-        """PUT a JSON payload to a resource."""
-        return await self._request("PUT", resource, api_form(payload))
-
-    async def _request(self, method: str, resource: str, form: dict[str, str] | None) -> ApiReply:
-        request = build_request(method, self.host, self.port, resource, form)
-        try:
-            async with asyncio.timeout(self.timeout_s):
-                response = await self._exchange(request)
-            return parse_api_reply(response, resource)
-        except TimeoutError as exc:  # before OSError: TimeoutError is one
-            raise DriverError(
-                f"the GPR at {self.url} did not answer {method} {resource} within {self.timeout_s} s; "
-                "check that the NIC-500 is powered and cabled (gpr_device.connect_timeout_s)"
-            ) from exc
-        except OSError as exc:
-            raise DriverError(
-                f"no GPR answers at {self.url} ({exc.strerror or exc}); check that the NIC-500 is powered, "
-                "cabled and at gpr_device.host / gpr_device.http_port"
-            ) from exc
-        except ProtocolError as exc:
-            raise DriverError(
-                f"something that is not a NIC-500 in SDK mode answers at {self.url}: {exc}; "
-                "check gpr_device.host / gpr_device.http_port"
-            ) from exc
-
-    async def _exchange(self, request: bytes) -> HttpResponse:
-        reader, writer = await asyncio.open_connection(self.host, self.port)
-        try:
-            writer.write(request)
-            await writer.drain()
-            parser = HttpResponseParser()
-            while True:
-                chunk = await reader.read(READ_CHUNK)
-                if not chunk:
-                    return parser.close()
-                response = parser.feed(chunk)
-                if response is not None:
-                    return response
-        finally:
-            writer.close()
-            with contextlib.suppress(OSError):
-                await writer.wait_closed()
-
-
-class DeviceClock:
-    """Converts the NIC's timestamps (its real-time clock) to host monotonic time, with jump detection.
-
-    Host receive time minus device time is the clock offset plus a latency >= 0, so the smallest such
-    sample is the best offset estimate; it may creep up by `drift_per_s` per host second to follow clock
-    drift. A device time going backwards or an apparent latency above `max_latency_s` means the NIC's
-    clock was set (NTP, RTC, reboot): the estimate is re-anchored and the jump counted. Times never
-    decrease: while the estimate improves, a trace may be given its predecessor's time.
-    """
-
-    def __init__(self, max_latency_s: float = 2.0, drift_per_s: float = 1e-4):
-        self.max_latency_s = max_latency_s
-        self.drift_per_s = drift_per_s
-        self.jumps = 0
-        self.last_jump_s = 0.0
-        self._offset: float | None = None
-        self._last_device = 0.0
-        self._last_received = 0.0
-        self._last_t = -float("inf")
-
-    def to_host(self, device_s: float, received_s: float) -> float:
-        """Host time of the trace stamped `device_s` and received at host time `received_s`."""
-        sample = received_s - device_s
-        if self._offset is None:
-            self._offset = sample
-        else:
-            allowed = self._offset + self.drift_per_s * max(0.0, received_s - self._last_received)
-            if device_s < self._last_device or sample > allowed + self.max_latency_s:
-                self._jump(sample)
-            else:
-                if sample < allowed - self.max_latency_s:
-                    self._jump(sample)
-                self._offset = min(allowed, sample)
-        self._last_device, self._last_received = device_s, received_s
-        # Never before the previous trace: a better offset estimate must not reorder traces.
-        self._last_t = max(device_s + self._offset, self._last_t)
-        return self._last_t
-
-    def _jump(self, sample: float) -> None:
-        assert self._offset is not None
-        self.jumps += 1
-        self.last_jump_s = self._offset - sample  # how far the device clock moved beyond elapsed time
-        self._offset = sample
 
 
 @dataclass(frozen=True)
@@ -189,7 +67,7 @@ class GprDriver:
 
     Trace numbers are the NIC's until it restarts its numbering (a setup after a power cycle); from then
     on they continue from the last delivered number, so they always increase. `t0_ns` is where the first
-    break lies in each trace (see `protocol.setup_from_config`). `clock` gives host receive times,
+    break lies in each trace (see `sdk_api.setup_from_config`). `clock` gives host receive times,
     `sleep` paces the reconnect backoff, `raw_sink` sees every data-socket read with its receive time.
     """
 
@@ -221,7 +99,7 @@ class GprDriver:
         self._stopping = False
         self._stopped = False
         self._counts = {"traces": 0, "resyncs": 0, "bytes_skipped": 0, "reconnects": 0, "stalls": 0}
-        self.setup: AcquisitionSetup | None = None  # as the NIC applied it
+        self.setup: api.AcquisitionSetup | None = None  # as the NIC applied it
         self.device_info: dict[str, Any] = {}
         self._t0_ns = 0.0
 
@@ -250,7 +128,7 @@ class GprDriver:
             self._task = None
         await self._close_data(wait=False)
         try:
-            await self._http.put(RESOURCE_ACQUISITION, {"state": ACQUISITION_STOP})
+            await self._http.put(api.RESOURCE_ACQUISITION, {"state": api.ACQUISITION_STOP})
         except DriverError as exc:
             self._health.error(f"could not stop the acquisition: {exc}")
         self._stopped = True
@@ -285,28 +163,28 @@ class GprDriver:
 
     async def _configure(self) -> None:
         """The full bring-up: identity, power, setup (a new numbering epoch), data socket, start."""
-        name = parse_identity((await self._http.get(RESOURCE_ROOT)).data)
-        if name != API_IDENTITY:
+        name = api.parse_identity((await self._http.get(api.RESOURCE_ROOT)).data)
+        if name != api.API_IDENTITY:
             raise DriverError(
-                f"the device at {self._http.url} answers as {name!r}, not {API_IDENTITY!r}: put the "
+                f"the device at {self._http.url} answers as {name!r}, not {api.API_IDENTITY!r}: put the "
                 "NIC-500 in SDK mode, or fix gpr_device.host / gpr_device.http_port"
             )
-        self.device_info = {"nic": (await self._http.get(RESOURCE_NIC_INFO)).data}
+        self.device_info = {"nic": (await self._http.get(api.RESOURCE_NIC_INFO)).data}
         try:
-            await self._http.put(RESOURCE_POWER, {"state": POWER_ALL_ON})
-        except DeviceRejectedError as exc:
+            await self._http.put(api.RESOURCE_POWER, {"state": api.POWER_ALL_ON})
+        except api.DeviceRejectedError as exc:
             raise DriverError(f"the NIC could not power the GPR on ({exc}); check the antenna's cable "
                               "and that its transmitter and receiver match") from exc
-        gpr_info = (await self._http.get(RESOURCE_GPR_INFO)).data
+        gpr_info = (await self._http.get(api.RESOURCE_GPR_INFO)).data
         self.device_info["gpr"] = gpr_info
-        reference_ps = parse_window_reference_ps(gpr_info)
-        if parse_state((await self._http.get(RESOURCE_ACQUISITION)).data) != ACQUISITION_STOP:
-            await self._http.put(RESOURCE_ACQUISITION, {"state": ACQUISITION_STOP})  # setup needs it stopped
+        reference_ps = api.parse_window_reference_ps(gpr_info)
+        if api.parse_state((await self._http.get(api.RESOURCE_ACQUISITION)).data) != api.ACQUISITION_STOP:
+            await self._http.put(api.RESOURCE_ACQUISITION, {"state": api.ACQUISITION_STOP})  # setup needs it stopped
         await self._open_data()  # before the setup, so that trace 1 is not missed
-        requested = setup_from_config(self.cfg, reference_ps)
+        requested = api.setup_from_config(self.cfg, reference_ps)
         try:
-            reply = await self._http.put(RESOURCE_SETUP, setup_payload(requested))
-        except DeviceRejectedError as exc:
+            reply = await self._http.put(api.RESOURCE_SETUP, api.setup_payload(requested))
+        except api.DeviceRejectedError as exc:
             await self._close_data()
             raise DriverError(
                 f"the NIC rejected the acquisition setup (status {exc.status_code}: {exc}); check "
@@ -314,24 +192,24 @@ class GprDriver:
                 "50), stacks (a power of 2), window_shift_ns and trigger_period_s (>= 0.00125)"
             ) from exc
         try:
-            applied = parse_setup(reply.data)
+            applied = api.parse_setup(reply.data)
         except ProtocolError:
-            applied = parse_setup((await self._http.get(RESOURCE_SETUP)).data)
+            applied = api.parse_setup((await self._http.get(api.RESOURCE_SETUP)).data)
         changes = [f"{f.name} {getattr(requested, f.name)} -> {getattr(applied, f.name)}"
                    for f in dataclasses.fields(applied) if getattr(requested, f.name) != getattr(applied, f.name)]
         if changes:
             self._health.error(f"the NIC adjusted the setup: {', '.join(changes)}")
         self.setup = applied
-        self._t0_ns = first_break_ns(applied, reference_ps)
+        self._t0_ns = api.first_break_ns(applied, reference_ps)
         self._counter.new_epoch()
         self._new_parser()
-        await self._http.put(RESOURCE_ACQUISITION, {"state": ACQUISITION_START})
+        await self._http.put(api.RESOURCE_ACQUISITION, {"state": api.ACQUISITION_START})
         self._health.connected = True
 
     async def _recover(self) -> None:
         """Reconnect: only the data socket if the NIC still acquires, else the full bring-up."""
-        state = parse_state((await self._http.get(RESOURCE_ACQUISITION)).data)
-        if state != ACQUISITION_START or self.setup is None:
+        state = api.parse_state((await self._http.get(api.RESOURCE_ACQUISITION)).data)
+        if state != api.ACQUISITION_START or self.setup is None:
             await self._configure()
             return
         await self._open_data()
@@ -351,15 +229,15 @@ class GprDriver:
 
     async def _open_data(self) -> None:
         try:
-            port = parse_data_port((await self._http.get(RESOURCE_DATA_SOCKET)).data)
-        except (DeviceRejectedError, ProtocolError):
+            port = api.parse_data_port((await self._http.get(api.RESOURCE_DATA_SOCKET)).data)
+        except (api.DeviceRejectedError, ProtocolError):
             port = self.cfg.data_port  # a NIC that does not report its port: the configured one
         try:
             async with asyncio.timeout(self.cfg.connect_timeout_s):
                 self._data = await asyncio.open_connection(self.cfg.host, port)
         except OSError as exc:  # TimeoutError included
             with contextlib.suppress(DriverError):  # the vendor's remedy for a stale data socket
-                await self._http.put(RESOURCE_DATA_SOCKET_RESET, {})
+                await self._http.put(api.RESOURCE_DATA_SOCKET_RESET, {})
             raise DriverError(f"cannot open the GPR data socket {self.cfg.host}:{port} ({exc})") from exc
 
     async def _close_data(self, wait: bool = True) -> None:

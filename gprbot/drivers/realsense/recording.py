@@ -11,12 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypedDict, Unpack
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.drivers.realsense.source import Intrinsics, require_pyrealsense
+from gprbot.drivers.realsense.readings import Intrinsics
+from gprbot.drivers.realsense.sdk import require_pyrealsense
 from gprbot.errors import DriverError
 
 
@@ -29,6 +30,18 @@ class RecordingRates(NamedTuple):
 
 
 DEFAULT_RATES = RecordingRates()
+
+
+class CameraOptions(TypedDict, total=False):
+    """The optional settings of a `SoftwareD435i`, which `write_recording` passes on to it."""
+
+    color_intrinsics: Intrinsics | None
+    depth_to_color_m: tuple[float, float, float]
+    depth_scale: float
+    serial: str
+    color_format: str
+
+
 # Stream uids must be unique within the device; they also order samples of equal timestamps.
 _UID = {"depth": 0, "color": 1, "gyro": 2, "accel": 3}
 
@@ -122,28 +135,22 @@ def write_recording(
     intrinsics: Intrinsics,
     rates: RecordingRates = DEFAULT_RATES,
     *,
-    color_intrinsics: Intrinsics | None = None,
-    depth_to_color_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    depth_scale: float = 0.001,
-    serial: str = "000000000000",
-    color_format: str = "bgr8",
     compress: bool = False,
+    **options: Unpack[CameraOptions],
 ) -> Path:
     """Record IMU samples (t s, gyro rad/s, accel m/s²) and frames (t s, colour BGR, depth) to a .db3.
 
     `imu` items are ImuSample-like (attributes or a tuple t, gyro, accel; either may be None). Device
     timestamps are t in milliseconds on the hardware clock; frame numbers count from 0 per stream.
-    `color_format` "rgb8" records the colour images as RGB (as some tools do). Returns the file
-    written: `path` with its suffix made `.db3`.
+    `options` shape the camera as in `SoftwareD435i`: `color_format` "rgb8" records the colour
+    images as RGB (as some tools do). Returns the file written: `path` with its suffix made `.db3`.
     """
     sdk = require_pyrealsense()
     target = Path(path).with_suffix(".db3")
     target.unlink(missing_ok=True)  # the recorder will not overwrite
     events = _timeline(imu, frames)
     height, width = frames[0][2].shape if frames else (0, 0)
-    camera = SoftwareD435i(width, height, intrinsics, rates, color_intrinsics=color_intrinsics,
-                           depth_to_color_m=depth_to_color_m, depth_scale=depth_scale, serial=serial,
-                           color_format=color_format)
+    camera = SoftwareD435i(width, height, intrinsics, rates, **options)
     try:
         recorder = sdk.recorder(str(target), camera.device, compress)
     except RuntimeError as exc:

@@ -4,6 +4,7 @@
 keeps one frame per stream, so at 400 Hz it drops most IMU samples, and with a frame callback it stalls
 non-real-time playback. Readings are handed to a sink from librealsense's own threads; a recording plays
 as fast as the sink takes them (`set_real_time(False)`), so a blocking sink is backpressure, not loss.
+The readings are defined in `readings`, the depth-to-colour registration in `registration`.
 """
 
 from __future__ import annotations
@@ -11,75 +12,29 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from gprbot.config import RealsenseConfig
 from gprbot.drivers.realsense.clock import FramePairer
+from gprbot.drivers.realsense.readings import Intrinsics, MotionReading, Reading, RgbdReading, Sink, SourceEvent
+from gprbot.drivers.realsense.registration import DepthToColor, same_geometry
+from gprbot.drivers.realsense.sdk import require_pyrealsense
 from gprbot.errors import DriverError
 
-try:
-    import pyrealsense2 as rs
-except ImportError:  # wheels exist for x86_64 only; the driver then reports it at start
-    rs = None
+__all__ = [
+    "ACCEL_RATES_HZ", "GYRO_RATES_HZ", "DepthToColor", "Intrinsics", "MotionReading", "Reading", "RealsenseSource",
+    "RgbdReading", "Sink", "SourceEvent", "require_pyrealsense", "same_geometry",
+]
 
-Intrinsics = tuple[float, float, float, float]  # fx, fy, cx, cy in pixels
 GYRO_RATES_HZ = (200, 400)
 ACCEL_RATES_HZ = (63, 250)
 _HELP_DEVICE = (
     "plug the D435i into a USB 3 port (blue), check that librealsense's udev rules "
     "(99-realsense-libusb.rules) are installed, and run `rs-enumerate-devices`"
 )
-
-
-@dataclass(frozen=True)
-class MotionReading:
-    """One gyro (rad/s) or accel (m/s²) sample, stamped by the device and on receipt by the host."""
-
-    stream: str  # "gyro" or "accel"
-    number: int
-    device_ms: float
-    domain: str
-    host_s: float
-    xyz: NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class RgbdReading:
-    """A depth frame paired with the colour frame of the same instant, depth registered to colour."""
-
-    depth_number: int
-    color_number: int
-    device_ms: float  # the depth frame's timestamp
-    domain: str
-    host_s: float
-    color: NDArray[np.uint8]
-    depth: NDArray[np.uint16]
-    depth_scale: float
-    intrinsics: Intrinsics  # of the colour camera, which the depth is registered to
-
-
-@dataclass(frozen=True)
-class SourceEvent:
-    """Not data: the recording ended ("end"), the device was lost ("lost") or a frame failed ("error")."""
-
-    kind: str
-    detail: str = ""
-
-
-Reading = MotionReading | RgbdReading | SourceEvent
-Sink = Callable[[Reading], None]
-
-
-def require_pyrealsense() -> Any:
-    """The pyrealsense2 module, or a DriverError saying how to get it."""
-    if rs is None:
-        raise DriverError("pyrealsense2 is not installed (wheels exist for x86_64): pip install pyrealsense2")
-    return rs
 
 
 class RealsenseSource:
@@ -279,42 +234,6 @@ class RealsenseSource:
         if self._device is not None and info.was_removed(self._device):
             self._sink(SourceEvent("lost", "the RealSense was disconnected; " + _HELP_DEVICE))
 
-
-class DepthToColor:
-    """Registers depth frames to the colour camera with librealsense's own `rs.align`."""
-
-    def __init__(self) -> None:
-        sdk = require_pyrealsense()
-        self._pair: list[Any] = []
-        # rs.align takes a frameset; a processing block is the SDK's way to compose one from two frames.
-        self._compose = sdk.processing_block(self._composite)
-        self._framesets = sdk.frame_queue(1, keep_frames=True)
-        self._compose.start(self._framesets)
-        self._align = sdk.align(sdk.stream.color)
-
-    def __call__(self, depth: Any, color: Any) -> Any:
-        """The depth frame resampled onto the colour image (zero where no depth maps)."""
-        self._pair = [depth, color]
-        self._compose.invoke(depth)
-        frameset = self._framesets.wait_for_frame().as_frameset()
-        self._pair = []
-        return self._align.process(frameset).get_depth_frame()
-
-    def _composite(self, frame: Any, source: Any) -> None:
-        source.frame_ready(source.allocate_composite_frame(self._pair))
-
-
-def same_geometry(depth: Any, color: Any) -> bool:
-    """True when depth already lies on the colour image: equal intrinsics and identity extrinsics."""
-    a = depth.as_video_stream_profile().get_intrinsics()
-    b = color.as_video_stream_profile().get_intrinsics()
-    fields = ("width", "height", "fx", "fy", "ppx", "ppy", "model", "coeffs")
-    if any(getattr(a, name) != getattr(b, name) for name in fields):
-        return False
-    extrinsics = depth.get_extrinsics_to(color)
-    return bool(
-        np.allclose(extrinsics.rotation, np.eye(3).ravel()) and np.allclose(extrinsics.translation, 0.0)
-    )
 
 
 def _stream_name(sdk: Any, profile: Any) -> str | None:
