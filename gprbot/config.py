@@ -229,6 +229,9 @@ class SimConfig:
 
     scene: str = "paper_slab"
     seed: int = 0
+    # Where the demo's pose estimate comes from: "fused" runs the real filter on simulated IMU, wheel
+    # encoders and camera (VO); "noise" perturbs the true path by `pose_noise` (fast, for tests).
+    poses: Literal["fused", "noise"] = "fused"
 
 
 @dataclass(frozen=True)

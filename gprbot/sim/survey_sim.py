@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-from gprbot.config import Config
+from gprbot.config import Config, FusionConfig, MotorsConfig, SurveyConfig
 from gprbot.messages import Trace
 from gprbot.motion.planner import SurveyPlan, plan_survey
 from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.scene import Scene
-from gprbot.sim.trajectory import SimulatedTrajectory, simulate_trajectory
+from gprbot.sim.trajectory import SimulatedTrajectory, fused_trajectory, simulate_trajectory
 
 
 @dataclass(frozen=True)
@@ -23,10 +24,22 @@ class SimulatedSurvey:
     traces: tuple[Trace, ...]
 
 
+@functools.lru_cache(maxsize=2)
+def _fused(
+    survey: SurveyConfig, lever_arm: tuple[float, float, float], motors: MotorsConfig, fusion: FusionConfig, seed: int
+) -> SimulatedTrajectory:
+    # The robot's path does not depend on what lies under the slab: surveys of several scenes with the
+    # same plan share one fused trajectory (rendering and VO are most of a simulated survey's time).
+    return fused_trajectory(plan_survey(survey), lever_arm, motors, fusion, seed)
+
+
 def simulate_survey(cfg: Config, scene: Scene) -> SimulatedSurvey:
     """Drive the configured survey over `scene` and record a trace at the GPR's trigger rate."""
     plan = plan_survey(cfg.survey)
-    trajectory = simulate_trajectory(plan, cfg.mount.antenna_lever_arm_m, cfg.pose_noise)
+    if cfg.sim.poses == "fused":
+        trajectory = _fused(cfg.survey, cfg.mount.antenna_lever_arm_m, cfg.motors, cfg.fusion, cfg.sim.seed)
+    else:
+        trajectory = simulate_trajectory(plan, cfg.mount.antenna_lever_arm_m, cfg.pose_noise)
     rng = np.random.default_rng(cfg.sim.seed)
     traces: list[Trace] = []
     number = 0
