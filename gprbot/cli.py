@@ -57,6 +57,19 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_run(args: argparse.Namespace) -> int:
+    from gprbot.config import load_config
+    from gprbot.daemon import run_daemon
+
+    cfg = load_config(args.config)
+    return run_daemon(
+        cfg,
+        shell_host=args.shell_host or cfg.shell.host,
+        shell_port=cfg.shell.port if args.shell_port is None else args.shell_port,
+        token_file=args.token_file or cfg.shell.token_file,
+    )
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from gprbot.config import load_config
     from gprbot.replay import replay_run
@@ -108,6 +121,13 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
     interp.set_defaults(func=_cmd_interpret)
+
+    run = sub.add_parser("run", help="run the robot daemon (the simulated robot unless the config names devices)")
+    run.add_argument("--config", help="config YAML (default: the embedded simulation config)")
+    run.add_argument("--shell-host", help="override shell.host")
+    run.add_argument("--shell-port", type=int, help="override shell.port (0: any free port)")
+    run.add_argument("--token-file", help="override shell.token_file")
+    run.set_defaults(func=_cmd_run)
 
     replay = sub.add_parser("replay", help="reprocess a recorded run offline (fusion + interpretation)")
     replay.add_argument("run", help="the run directory (holding log-000.msgpack ...)")

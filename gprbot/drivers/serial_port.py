@@ -69,8 +69,10 @@ class AsyncSerialPort:
         if not self._buffer and self._failure is None:
             assert self._loop is not None
             self._waiter = self._loop.create_future()
+            # asyncio.timeout, not wait_for: on Python 3.11 wait_for can swallow a cancellation.
             try:
-                await asyncio.wait_for(asyncio.shield(self._waiter), timeout_s)
+                async with asyncio.timeout(timeout_s):
+                    await asyncio.shield(self._waiter)
             except TimeoutError:
                 pass
             finally:

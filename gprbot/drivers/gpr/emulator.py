@@ -209,7 +209,9 @@ class GprSdkEmulator(EmulatedSdkApi):
             delay = next_t - loop.time()
             if delay > 0:
                 await asyncio.sleep(delay)
-            elif delay < -1.0:  # fell far behind (a blocked loop): carry on without a burst
+            else:
+                await asyncio.sleep(0)  # catching up: still let the rest of the loop run between frames
+            if delay < -1.0:  # fell far behind (a blocked loop): carry on without a burst
                 next_t = loop.time()
             if self.acquisition_state != ACQUISITION_START or self._stalled or self.setup is not setup:
                 continue

@@ -1,0 +1,71 @@
+"""The fusion task's state: a queue of sensor messages into PoseFuser, and what the robot reads back.
+
+Producers (IMU, encoders) `submit` messages; the fusion task pushes them into the filter in arrival
+order (the filter re-orders within its window). The control loop reads `yaw_rad` and `gyro_z_rad_s`;
+the survey tags traces with `poses_between`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+
+from gprbot.config import Config
+from gprbot.fusion.fuser import PoseFuser, SensorMessage
+from gprbot.messages import ImuSample, Pose
+
+
+class FusionState:
+    """PoseFuser behind an asyncio queue, with the latest heading and gyro rate for heading hold."""
+
+    def __init__(self, cfg: Config, initial_pose: tuple[float, float, float]) -> None:
+        x, y, yaw = initial_pose
+        self.fuser = PoseFuser(cfg.fusion, cfg.motors, initial_position=(x, y, 0.0), initial_yaw_rad=yaw)
+        self.initial_yaw_rad = yaw
+        self.gyro_z_rad_s = 0.0
+        self.messages = 0
+        self._queue: asyncio.Queue[SensorMessage] = asyncio.Queue()
+
+    def submit(self, message: SensorMessage) -> None:
+        """Queue one sensor message for the filter (never blocks)."""
+        if isinstance(message, ImuSample) and message.gyro is not None:
+            self.gyro_z_rad_s = float(message.gyro[2])
+        self._queue.put_nowait(message)
+
+    @property
+    def ready(self) -> bool:
+        """Whether the filter has initialised (after its at-rest period) and emits poses."""
+        return self.fuser.ekf.initialized and len(self.fuser.history) >= 2
+
+    @property
+    def yaw_rad(self) -> float:
+        """The fused heading (rad); the start heading until the filter is ready."""
+        return self.fuser.yaw_rad if self.fuser.ekf.initialized else self.initial_yaw_rad
+
+    @property
+    def gyro_bias_z(self) -> float:
+        """The filter's gyro-z bias estimate (rad/s), to debias the raw rate used for damping."""
+        return float(self.fuser.ekf.gyro_bias[2]) if self.fuser.ekf.initialized else 0.0
+
+    def newest_pose(self) -> Pose | None:
+        """The most recent output pose."""
+        return self.fuser.history[-1] if self.fuser.history else None
+
+    def poses_between(self, t0: float, t1: float, margin_s: float = 0.05) -> list[Pose]:
+        """Output poses from just before t0 to just after t1."""
+        return [p for p in self.fuser.history if t0 - margin_s <= p.t <= t1 + margin_s]
+
+    async def run(self, beat: Callable[[], None]) -> None:
+        """The fusion task: push queued messages into the filter as they come."""
+        while True:
+            beat()
+            try:
+                async with asyncio.timeout(0.5):  # not wait_for: on 3.11 it can swallow a cancel
+                    message = await self._queue.get()
+            except TimeoutError:
+                continue
+            self.fuser.push(message)
+            self.messages += 1
+            while not self._queue.empty():
+                self.fuser.push(self._queue.get_nowait())
+                self.messages += 1

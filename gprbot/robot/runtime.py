@@ -1,0 +1,299 @@
+"""The robot the daemon runs: devices, fusion, the 50 Hz motion loop, survey, recorder, worker, shell.
+
+`start_devices()` brings the hardware up (or the simulated robot's emulators, with the same drivers);
+`task_table()` is the daemon's declared table of tasks over them; `estop()`/`shutdown()` are the
+paths that stop the wheels first.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from gprbot.config import Config
+from gprbot.daemon import TaskSpec
+from gprbot.drivers.gpr.driver import GprDriver
+from gprbot.drivers.motors.driver import MotorDriver
+from gprbot.drivers.realsense.driver import RealsenseDriver
+from gprbot.errors import ConfigError, DriverError
+from gprbot.infer.worker import InferenceWorker
+from gprbot.messages import ImuSample, WheelSpeeds
+from gprbot.motion.heading import HeadingHoldDrive, HeadingHoldGains
+from gprbot.motion.jog import JogController
+from gprbot.robot.fusion_state import FusionState
+from gprbot.robot.recorder import Recorder
+from gprbot.robot.sim_robot import SimRobot, is_simulated, start_pose
+from gprbot.robot.survey_runner import SurveyRunner
+from gprbot.shell.handler import EventBus
+from gprbot.shell.server import ShellServer
+
+if TYPE_CHECKING:
+    from gprbot.daemon import Supervisor
+
+log = logging.getLogger(__name__)
+CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
+ENCODER_PERIOD_S = 0.02
+DEFAULT_SHELL_PORT = 7878
+
+
+class RobotRuntime:
+    """Everything the daemon supervises, and the operations the shell handler calls."""
+
+    def __init__(self, cfg: Config, *, shell_host: str = "127.0.0.1", shell_port: int | None = None,
+                 token_file: str | None = None, clock: Callable[[], float] = time.monotonic,
+                 use_worker: bool = True) -> None:
+        self.cfg = cfg
+        self.clock = clock
+        self.sim: SimRobot | None = None
+        if is_simulated(cfg):
+            if not (cfg.motors.port == "sim" and cfg.gpr_device.host == "sim" and cfg.realsense.source == "sim"):
+                raise ConfigError("mixing simulated and real devices is not supported: set motors.port, "
+                                  "gpr_device.host and realsense.source all to 'sim', or none of them")
+            self.sim = SimRobot(cfg, clock=clock)
+        self.fusion = FusionState(cfg, start_pose(cfg))
+        gains = HeadingHoldGains(cfg.motion.heading_kp_per_s, cfg.motion.heading_ki_per_s2,
+                                 cfg.motion.heading_kd_gyro, cfg.motion.max_heading_omega_rad_s)
+        self.drive = HeadingHoldDrive.from_config(cfg.motors, gains)
+        self.drive.reset(start_pose(cfg)[2])
+        self.jog = JogController(cfg.motion.jog_max_speed_m_s, cfg.motion.jog_deadman_timeout_s,
+                                 cfg.motion.jog_max_duration_s)
+        self.events = EventBus()
+        self.recorder = Recorder()
+        self.worker = InferenceWorker(cfg) if use_worker else None
+        truth = [p.points for p in self.sim.scene.pipes] if self.sim is not None else []
+        self.survey = SurveyRunner(cfg, self.fusion, self.recorder, self.emit, worker=self.worker, clock=clock,
+                                   run_meta=self._run_meta, truth_axes=truth)
+        self.shell_host = shell_host
+        self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
+        self.token_file = token_file
+        self.shell: ShellServer | None = None
+        self.motors: MotorDriver | None = None
+        self.gpr: GprDriver | None = None
+        self.realsense: RealsenseDriver | None = None
+        self.camera_frames = 0  # RGB-D frames received (VO is not wired into the daemon yet)
+        self.supervisor: Supervisor | None = None
+        self.estopped = False
+        self.stopping = False
+        self.moving = False
+        self.last_command: np.ndarray = np.zeros(3)
+
+    # ----- lifecycle ----------------------------------------------------------------------------
+    async def start_devices(self) -> None:
+        """Start the emulators (sim), the motor and GPR drivers and the inference worker."""
+        cfg = self.cfg
+        if self.sim is not None:
+            cfg = await self.sim.start()
+        Path(cfg.runs_dir).mkdir(parents=True, exist_ok=True)
+        self.motors = MotorDriver(cfg.motors, self.clock, ports=dict(cfg.motors.controller_ports))
+        await self.motors.start()
+        self.gpr = GprDriver(cfg.gpr_device, self.clock)
+        await self.gpr.start()
+        if self.sim is None:
+            self.realsense = RealsenseDriver(cfg.realsense, self.clock)
+            await self.realsense.start()
+        if self.worker is not None:
+            await self.worker.start()
+
+    async def close_devices(self) -> None:
+        """Stop the drivers, the worker and the emulators (best effort, each independently)."""
+        steps: list[tuple[str, Callable[[], Awaitable[None]] | None]] = [
+            ("motors", self.motors.close if self.motors is not None else None),
+            ("gpr", self.gpr.stop if self.gpr is not None else None),
+            ("realsense", self.realsense.stop if self.realsense is not None else None),
+            ("worker", self.worker.close if self.worker is not None else None),
+            ("sim", self.sim.close if self.sim is not None else None),
+        ]
+        for name, close in steps:
+            if close is None:
+                continue
+            began = self.clock()
+            try:
+                async with asyncio.timeout(5.0):
+                    await close()
+            except (DriverError, TimeoutError) as exc:
+                log.error("closing %s failed: %r", name, exc)
+            log.debug("closed %s in %.3f s", name, self.clock() - began)
+
+    async def shutdown(self) -> None:
+        """SIGTERM: wheels to zero first, end the current line and close the run log."""
+        self.stopping = True
+        await self.stop_wheels()
+        await self.survey.shutdown()
+        self.emit("daemon stopping")
+
+    def task_table(self) -> list[TaskSpec]:
+        """The daemon's declared tasks: name, coroutine, watchdog deadline, restart policy."""
+        tasks = [
+            TaskSpec("fusion", self.fusion.run, watchdog_s=2.0, restart="always"),
+            TaskSpec("motors.encoders", self._run_encoders, watchdog_s=1.0, restart="always"),
+            TaskSpec("gpr.traces", self._run_gpr, watchdog_s=None, restart="always"),
+            TaskSpec("motion", self._run_motion, watchdog_s=0.5, restart="always"),
+            TaskSpec("survey", self.survey.run, watchdog_s=5.0, restart="always"),
+            TaskSpec("recorder", self.recorder.run, watchdog_s=5.0, restart="always"),
+            TaskSpec("shell.tcp", self._run_shell, watchdog_s=None, restart="always"),
+        ]
+        if self.sim is not None:
+            tasks.insert(0, TaskSpec("sim.imu", self._run_sim_imu, watchdog_s=1.0, restart="always"))
+        else:
+            tasks.insert(0, TaskSpec("realsense", self._run_realsense, watchdog_s=None, restart="always"))
+        if self.worker is not None:
+            tasks.append(TaskSpec("worker", self._run_worker_watch, watchdog_s=5.0, restart="always",
+                                  critical=False))
+        return tasks
+
+    # ----- tasks --------------------------------------------------------------------------------
+    async def _run_sim_imu(self, beat: Callable[[], None]) -> None:
+        assert self.sim is not None
+        async for batch in self.sim.imu_batches():
+            beat()
+            for sample in batch:
+                self.fusion.submit(sample)
+                self.recorder.append(sample, sample.t)
+
+    async def _run_realsense(self, beat: Callable[[], None]) -> None:
+        assert self.realsense is not None
+        async for message in self.realsense.messages():
+            beat()
+            if isinstance(message, ImuSample):
+                self.fusion.submit(message)
+                self.recorder.append(message, message.t)
+            else:
+                self.camera_frames += 1
+
+    async def _run_encoders(self, beat: Callable[[], None]) -> None:
+        motors = self._motors()
+        next_t = self.clock()
+        while True:
+            beat()
+            if motors.connected:
+                try:
+                    encoders = await motors.read_encoders()
+                except DriverError as exc:
+                    log.warning("encoder read failed: %s", exc)
+                else:
+                    self.fusion.submit(encoders.wheel_speeds())
+                    self.recorder.append(encoders, encoders.t)
+            else:
+                await motors.wait_connected()
+            next_t = max(next_t + ENCODER_PERIOD_S, self.clock())
+            await asyncio.sleep(next_t - self.clock())
+
+    async def _run_gpr(self, beat: Callable[[], None]) -> None:
+        assert self.gpr is not None
+        async for trace in self.gpr.traces():
+            beat()
+            self.survey.on_trace(trace)
+            self.recorder.append(trace, trace.t)
+
+    async def _run_motion(self, beat: Callable[[], None]) -> None:
+        """The 50 Hz motion loop: survey or jog velocity → heading hold → wheel speeds."""
+        motors = self._motors()
+        last = self.clock()
+        while True:
+            beat()
+            await asyncio.sleep(max(0.0, last + CONTROL_PERIOD_S - self.clock()))
+            now = self.clock()
+            dt, last = now - last, now
+            if self.estopped or self.stopping or not motors.connected:
+                self.moving = False
+                continue
+            jog_velocity = self.jog.update(now)
+            survey_velocity = self.survey.velocity
+            driving = survey_velocity is not None or self.jog.active
+            if not driving:
+                if self.moving:  # ramp to a stop (controller accel limit); no heading hold while parked
+                    self.moving = False
+                    self.drive.wheel_speeds = np.zeros(3)
+                    command = WheelSpeeds(now, np.zeros(3))
+                    with contextlib.suppress(DriverError):
+                        await motors.set_wheel_speeds(command)
+                    self.recorder.append(command, now)
+                continue
+            if not self.moving:
+                self.drive.reset(self.fusion.initial_yaw_rad)
+                self.drive.wheel_speeds = np.zeros(3)
+                self.moving = True
+            velocity = survey_velocity if survey_velocity is not None else jog_velocity
+            yaw = self.fusion.yaw_rad
+            c, s = math.cos(yaw), math.sin(yaw)
+            vx, vy = c * velocity[0] + s * velocity[1], -s * velocity[0] + c * velocity[1]  # site → body
+            gyro_z = self.fusion.gyro_z_rad_s - self.fusion.gyro_bias_z
+            command = self.drive.step(vx, vy, yaw_rad=yaw, gyro_z_rad_s=gyro_z, dt_s=dt, t=now)
+            self.last_command = command.speeds
+            if self.estopped or self.stopping:  # an e-stop arrived while this step was computed
+                continue
+            with contextlib.suppress(DriverError):  # the driver stopped the wheels and reconnects
+                await motors.set_wheel_speeds(command)
+            self.recorder.append(command, now)
+
+    async def _run_shell(self, beat: Callable[[], None]) -> None:
+        from gprbot.robot.handler import RobotHandler
+
+        beat()
+        server = ShellServer(RobotHandler(self), host=self.shell_host, port=self.shell_port,
+                             token_file=self.token_file, events=self.events)
+        await server.start()
+        self.shell = server
+        self.shell_port = server.port
+        try:
+            await asyncio.Event().wait()
+        finally:
+            with contextlib.suppress(TimeoutError):  # a client that stopped reading must not hold us up
+                async with asyncio.timeout(2.0):
+                    await server.close()
+
+    async def _run_worker_watch(self, beat: Callable[[], None]) -> None:
+        while True:
+            beat()
+            await asyncio.sleep(1.0)
+
+    # ----- operations for the handler --------------------------------------------------------------
+    async def estop(self) -> float:
+        """Latch the e-stop and command every wheel to 0 now, ahead of queued requests; seconds taken."""
+        began = self.clock()
+        self.estopped = True
+        self.jog.stop(began)
+        self.survey.pause()
+        await self.stop_wheels()
+        self.emit("estop")
+        return self.clock() - began
+
+    async def stop_wheels(self) -> None:
+        """Stop every wheel now (the controllers' failsafe covers a dead link)."""
+        self.moving = False
+        self.drive.wheel_speeds = np.zeros(3)
+        motors = self._motors()
+        if motors.connected:
+            await motors.stop()
+
+    def emit(self, event: str) -> None:
+        """Broadcast an event line to every shell client."""
+        log.info("event: %s", event)
+        self.events.broadcast(event)
+
+    def status_text(self) -> str:
+        """A one-line summary for systemd's STATUS=."""
+        run = self.survey.current
+        survey = f"survey {run.state} line {run.line + 1}/{run.lines}" if run is not None else "no survey"
+        return f"{'ESTOP' if self.estopped else 'ok'}; {survey}"
+
+    def _motors(self) -> MotorDriver:
+        if self.motors is None:
+            raise DriverError("the motor driver is not started")
+        return self.motors
+
+    def _run_meta(self) -> dict[str, Any]:
+        meta: dict[str, Any] = {"simulated": self.sim is not None}
+        if self.sim is not None:
+            meta["scene"] = self.sim.scene.name
+        if self.motors is not None:
+            meta["devices"] = {f"roboclaw_{a}": v for a, v in self.motors.firmware.items()}
+        return meta

@@ -1,0 +1,172 @@
+"""The simulated robot: device emulators fed by a simulated world, so the daemon runs its real drivers.
+
+- Motors: a RoboClawEmulator on a pty; the MotorDriver talks RoboClaw packet serial to it.
+- GPR: a GprSdkEmulator on loopback whose traces come from the forward model at the robot's TRUE
+  antenna position at the instant each trace is triggered.
+- IMU: BMI055-like gyro (400 Hz) and accelerometer (250 Hz) samples of the true motion (the D435i
+  driver needs the device or a recording, so the sim feeds ImuSample messages directly).
+- Truth: the base's planar pose is integrated from the emulated motors' shaft speeds through the kiwi
+  forward kinematics, with each wheel's true radius a little off nominal — so the wheels alone would
+  drift in yaw and heading hold has real work to do, seen by the gyro but not by the encoders.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+import time
+from collections.abc import AsyncIterator, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.config import Config
+from gprbot.drivers.gpr.emulator import GprSdkEmulator
+from gprbot.drivers.motors.emulator import RoboClawEmulator
+from gprbot.messages import ImuSample
+from gprbot.motion.kinematics import KiwiKinematics, integrate_body_twist
+from gprbot.sim.forward import simulate_bscan
+from gprbot.sim.imu import ImuModel
+from gprbot.sim.scene import Scene, load_scene
+
+GRAVITY_M_S2 = 9.80665
+WHEEL_RADIUS_ERROR = (0.012, -0.009, 0.004)  # true radius / nominal - 1 for wheels 0, 1, 2
+
+
+def is_simulated(cfg: Config) -> bool:
+    """Whether the config asks for the simulated robot (any device set to "sim")."""
+    return cfg.motors.port == "sim" or cfg.gpr_device.host == "sim" or cfg.realsense.source == "sim"
+
+
+def start_pose(cfg: Config) -> tuple[float, float, float]:
+    """Where the base starts (x, y, yaw): the antenna midpoint over the survey's start point, heading +x."""
+    lever = cfg.mount.antenna_lever_arm_m
+    x0, y0 = cfg.survey.start_xy_m
+    return (x0 - lever[0], y0 - lever[1], 0.0)
+
+
+class SimRobot:
+    """The emulated devices and the true state of the simulated robot on its slab."""
+
+    def __init__(self, cfg: Config, scene: Scene | None = None, clock: Callable[[], float] = time.monotonic,
+                 imu_model: ImuModel | None = None) -> None:
+        self.cfg = cfg
+        self.scene = scene or load_scene(cfg.sim.scene)
+        self.clock = clock
+        self.imu_model = imu_model or ImuModel()
+        self.kinematics = KiwiKinematics.from_config(cfg.motors)
+        self.radius_scale = 1.0 + np.array(WHEEL_RADIUS_ERROR)
+        self._rng = np.random.default_rng(cfg.sim.seed)
+        self._gyro_bias = self._rng.normal(0.0, self.imu_model.gyro_turn_on_bias_std, 3)
+        self._accel_bias = self._rng.normal(0.0, self.imu_model.accel_turn_on_bias_std, 3)
+        addresses = sorted({address for address, _ in cfg.motors.wheel_map})
+        self.motors = RoboClawEmulator(addresses, cfg.motors.encoder_counts_per_rev, clock, seed=cfg.sim.seed)
+        self.gpr = GprSdkEmulator(self._trace, device_clock=clock, enforce_device_ranges=False)
+        self.pose = np.array(start_pose(cfg), dtype=np.float64)  # true (x, y, yaw) of the base
+        self.velocity = np.zeros(2)  # true site-frame velocity (m/s)
+        self.omega = 0.0
+        self._t = clock()
+        self._angles = self.wheel_angles()
+        self.traces_served = 0
+
+    async def start(self) -> Config:
+        """Serve the emulators; the config with motors.port and gpr_device pointed at them."""
+        port = self.motors.serve_pty()
+        await self.gpr.start()
+        self._t, self._angles = self.clock(), self.wheel_angles()
+        motors = dataclasses.replace(self.cfg.motors, port=port, controller_ports=())
+        return dataclasses.replace(self.cfg, motors=motors, gpr_device=self.gpr.driver_config(self.cfg.gpr_device))
+
+    async def close(self) -> None:
+        """Stop both emulators."""
+        await self.gpr.stop()
+        self.motors.close()
+
+    # ----- the true state -----------------------------------------------------------------------
+    def wheel_speeds(self) -> NDArray[np.float64]:
+        """The emulated motors' shaft speeds now (rad/s), in wheel_map order."""
+        return np.array([self.motors.motor_speed(a, c) for a, c in self.cfg.motors.wheel_map])
+
+    def wheel_angles(self) -> NDArray[np.float64]:
+        """The emulated motors' shaft angles now (rad), in wheel_map order (exact: closed-form motor model)."""
+        counts = np.array([self.motors.encoder_position(a, c) for a, c in self.cfg.motors.wheel_map])
+        return counts * (2 * math.pi / self.cfg.motors.encoder_counts_per_rev)
+
+    def advance(self) -> float:
+        """Integrate the true pose up to now from the wheels' turns; the time reached.
+
+        The turn of each wheel since the last call (exact, whatever the call rate) over its true radius
+        gives the body's displacement; an encoder reset (a jump no motor can make) falls back to speed × dt.
+        """
+        now = self.clock()
+        dt = now - self._t
+        if dt <= 0.0:
+            return self._t
+        angles = self.wheel_angles()
+        turned = angles - self._angles
+        limit = 2.0 * self.cfg.motors.max_wheel_speed_rad_s * dt + 1e-3
+        if np.any(np.abs(turned) > limit):
+            turned = self.wheel_speeds() * dt
+        twist = self.kinematics.body_twist(turned * self.radius_scale / dt)
+        previous = self.pose[:2].copy()
+        self.pose = integrate_body_twist(self.pose, twist, dt)
+        self.velocity = (self.pose[:2] - previous) / dt
+        self.omega = float(twist[2])
+        self._t, self._angles = now, angles
+        return now
+
+    def antenna_xy(self) -> NDArray[np.float64]:
+        """The true antenna midpoint (x, y) in the site frame now."""
+        self.advance()
+        lever = self.cfg.mount.antenna_lever_arm_m
+        c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
+        return np.array([self.pose[0] + c * lever[0] - s * lever[1], self.pose[1] + s * lever[0] + c * lever[1]])
+
+    def _trace(self, number: int) -> NDArray[np.float32]:
+        """Trace `number` as the antenna records it at its true position now (the emulator's source)."""
+        del number
+        mid = self.antenna_xy()[None, :]
+        yaw = float(self.pose[2])
+        self.traces_served += 1
+        bscan = simulate_bscan(self.scene, mid, self.cfg.gpr, self._rng, offset_dir=(math.cos(yaw), math.sin(yaw)))
+        return np.asarray(bscan[0], dtype=np.float32)
+
+    # ----- the IMU ------------------------------------------------------------------------------
+    async def imu_batches(self, period_s: float = 0.01) -> AsyncIterator[list[ImuSample]]:
+        """Every period_s, the gyro and accelerometer samples due since the last batch (in time order)."""
+        model = self.imu_model
+        gyro_dt, accel_dt = 1.0 / model.gyro_rate_hz, 1.0 / model.accel_rate_hz
+        start = self.advance()
+        next_gyro, next_accel = start, start
+        last_velocity, last_t = self.velocity.copy(), start
+        while True:
+            await asyncio.sleep(period_s)
+            now = self.advance()
+            span = max(now - last_t, 1e-6)
+            accel_world = (self.velocity - last_velocity) / span
+            last_velocity, last_t = self.velocity.copy(), now
+            batch: list[ImuSample] = []
+            while next_gyro <= now:
+                batch.append(ImuSample(next_gyro, gyro=self._gyro_sample()))
+                next_gyro += gyro_dt
+            while next_accel <= now:
+                batch.append(ImuSample(next_accel, accel=self._accel_sample(accel_world)))
+                next_accel += accel_dt
+            batch.sort(key=lambda m: m.t)
+            yield batch
+
+    def _gyro_sample(self) -> NDArray[np.float64]:
+        m = self.imu_model
+        true = np.array([0.0, 0.0, self.omega])
+        noisy = true + self._gyro_bias + self._rng.normal(0.0, m.gyro_noise_density * math.sqrt(m.gyro_rate_hz), 3)
+        return np.asarray(np.round(noisy / m.gyro_lsb) * m.gyro_lsb)
+
+    def _accel_sample(self, accel_world: NDArray[np.float64]) -> NDArray[np.float64]:
+        m = self.imu_model
+        c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
+        body = np.array([c * accel_world[0] + s * accel_world[1], -s * accel_world[0] + c * accel_world[1],
+                         GRAVITY_M_S2])  # specific force on a level slab: gravity's reaction is +z
+        noisy = body + self._accel_bias + self._rng.normal(
+            0.0, m.accel_noise_density * math.sqrt(m.accel_rate_hz), 3)
+        return np.asarray(np.round(noisy / m.accel_lsb) * m.accel_lsb)
