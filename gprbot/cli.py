@@ -8,9 +8,13 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gprbot import __version__
 from gprbot.errors import GprbotError
+
+if TYPE_CHECKING:
+    from gprbot.config import Config
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -19,6 +23,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from gprbot.sim.scene import builtin_scene_names, load_scene
 
     cfg = load_config(args.config)
+    if args.via_daemon:
+        return _demo_via_daemon(cfg, args)
     names = builtin_scene_names() if args.scene == "all" else [args.scene or cfg.sim.scene]
     base = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("demo-%Y%m%d-%H%M%S")
     all_ok = True
@@ -35,6 +41,23 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print(f"results: {out_dir}\n")
         all_ok &= demo.ok
     return 0 if all_ok or not args.check else 3
+
+
+def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
+    import asyncio
+    import dataclasses
+
+    from gprbot.robot.shell_demo import survey_via_shell
+
+    if args.scene == "all":
+        raise GprbotError("--via-daemon surveys one scene: name it with --scene")
+    if args.scene:
+        cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, scene=args.scene))
+    dest = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("pulled-%Y%m%d-%H%M%S")
+    print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)")
+    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", flush=True)))
+    print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}")
+    return result.exit_status
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -105,6 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--scene", help="built-in scene name, a scene YAML file, or 'all' (default: config's)")
     demo.add_argument("--out", help="run directory to write (default: runs/demo-<time>)")
     demo.add_argument("--config", help="config YAML (default: the embedded simulation config)")
+    demo.add_argument("--via-daemon", action="store_true",
+                      help="the operator's path: start the daemon, survey through its TCP shell, pull the results")
     demo.add_argument("--check", action="store_true", help="exit 3 unless every pipe is within the bounds")
     demo.set_defaults(func=_cmd_demo)
 
