@@ -33,7 +33,7 @@ from gprbot.robot.recorder import Recorder
 from gprbot.robot.sim_robot import SimRobot, is_simulated, start_pose
 from gprbot.robot.survey_runner import SurveyRunner
 from gprbot.shell.handler import EventBus
-from gprbot.shell.server import ShellServer
+from gprbot.shell.server import SerialShell, ShellServer
 
 if TYPE_CHECKING:
     from gprbot.daemon import Supervisor
@@ -140,6 +140,8 @@ class RobotRuntime:
             TaskSpec("recorder", self.recorder.run, watchdog_s=5.0, restart="always"),
             TaskSpec("shell.tcp", self._run_shell, watchdog_s=None, restart="always"),
         ]
+        if self.cfg.shell.serial_console:
+            tasks.append(TaskSpec("shell.serial", self._run_serial_shell, watchdog_s=None, restart="always"))
         if self.sim is not None:
             tasks.insert(0, TaskSpec("sim.imu", self._run_sim_imu, watchdog_s=1.0, restart="always"))
         else:
@@ -239,7 +241,8 @@ class RobotRuntime:
 
         beat()
         server = ShellServer(RobotHandler(self), host=self.shell_host, port=self.shell_port,
-                             token_file=self.token_file, events=self.events)
+                             token_file=self.token_file, events=self.events,
+                             max_clients=self.cfg.shell.max_clients, rate_per_s=self.cfg.shell.rate_per_s)
         await server.start()
         self.shell = server
         self.shell_port = server.port
@@ -249,6 +252,20 @@ class RobotRuntime:
             with contextlib.suppress(TimeoutError):  # a client that stopped reading must not hold us up
                 async with asyncio.timeout(2.0):
                     await server.close()
+
+    async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
+        from gprbot.robot.handler import RobotHandler
+
+        beat()
+        assert self.cfg.shell.serial_console is not None
+        serial_shell = SerialShell(RobotHandler(self), self.cfg.shell.serial_console,
+                                   baudrate=self.cfg.shell.serial_baudrate, events=self.events,
+                                   rate_per_s=self.cfg.shell.rate_per_s)
+        await serial_shell.start()  # DriverError if the port is absent: the supervisor retries with backoff
+        try:
+            await asyncio.Event().wait()
+        finally:
+            await serial_shell.close()
 
     async def _run_worker_watch(self, beat: Callable[[], None]) -> None:
         while True:

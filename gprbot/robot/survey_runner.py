@@ -183,6 +183,11 @@ class SurveyRunner:
         if run.abort_reason is None:
             run.state = "running"
             self._event(run, "survey_start", -1, f"survey started {run.name} lines {run.lines}")
+            # A replay re-runs the pose filter from the log's start: it needs the robot at rest for the
+            # filter's initialisation before line 0 begins, whatever the plan's own settle time.
+            hold_s = self.cfg.fusion.init_duration_s + 0.2 - run.survey.settle_s
+            if hold_s > 0:
+                await self._beating(asyncio.sleep(hold_s), beat)
             t_plan = self.clock()
             for segment in run.plan.segments:
                 await self._drive(run, segment, beat)
