@@ -152,6 +152,34 @@ def test_tee_branch_ends_on_the_main_pipe() -> None:
     assert main.ends_on == (None, None)
 
 
+def test_branch_seen_on_two_lines_only_still_ends_on_its_main() -> None:
+    """Beside its main a branch hides in the main's hyperbola: the interpreter saw it on the last two lines."""
+    junction = [0.8, 0.5, -0.22]
+    u = [math.cos(math.radians(60)), math.sin(math.radians(60))]
+    main = rod([[0.8, -0.3, -0.22], [0.8, 1.3, -0.22]], 0.045)
+    branch = rod([junction, [0.8 + 0.7 * u[0], 0.5 + 0.7 * u[1], -0.22]], 0.03)
+    alone, both = make_slices([main]), make_slices([main, branch])
+    slices = [both[k] if k >= 8 else alone[k] for k in range(len(LINES_Y))]
+    result = geometric_completion(slices, CFG, np.random.default_rng(0))
+    assert len(result.pipes) == 2
+    found_main, found_branch = match(result.pipes, [main, branch])
+    assert found_branch.n_slices == 2
+    assert found_branch.radius_m == pytest.approx(0.03, rel=0.1)
+    assert found_branch.ends_on == (result.pipes.index(found_main), None)
+    assert np.max(distance_to_rod_axis(sample_polyline(found_branch.axis), branch[0])) < 0.01
+    assert np.linalg.norm(found_branch.axis[0] - junction) < 0.045 + 0.03  # at the main's wall, or nearer
+
+
+def test_radius_is_the_median_over_the_lines_not_swayed_by_wide_sections() -> None:
+    """Three of ten sections came out 28 % too wide (a neighbour's flank): pooled points would say +12 %."""
+    true, wide = straight(1.0, 0.45, 0.25, 90, 0.03), straight(1.0, 0.45, 0.25, 90, 0.0384)
+    normal, widened = make_slices([true]), make_slices([wide])
+    slices = [widened[k] if k in (2, 5, 7) else normal[k] for k in range(len(LINES_Y))]
+    (pipe,) = geometric_completion(slices, CFG, np.random.default_rng(0)).pipes
+    assert pipe.n_slices == 10
+    assert pipe.radius_m == pytest.approx(0.03, rel=0.05)
+
+
 def test_two_pipes_8_cm_apart_stay_two() -> None:
     gap = 0.08 / math.sin(math.radians(70))  # 8 cm between axes, along the lines
     rods = [straight(1.0, 0.45, 0.2, 70, 0.025), straight(1.0 + gap, 0.45, 0.2, 70, 0.025)]

@@ -12,10 +12,13 @@ import pytest
 from gprbot.config import GprConfig, InterpretationConfig
 from gprbot.errors import InterpretationError
 from gprbot.gpr.bscan import BScan, SyntheticTarget, bscan_from_dzt, synthetic_bscan
+from gprbot.gpr.hyperbola import hyperbolas_of_line
 from gprbot.gpr.interpret import fit_cylinder, interpret_bscan
+from gprbot.gpr.line_model import prepare_line
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.gpr.velocity import hyperbolas_of_line, prepare_line
+from gprbot.sim.forward import simulate_bscan
+from gprbot.sim.scene import Pipe, Scene, Slab
 
 CFG = InterpretationConfig()
 GPR = GprConfig()
@@ -68,6 +71,42 @@ def test_air_filled_pipe_radius_from_its_inner_echo() -> None:
     (found,) = section.detections
     assert found.radius_m == pytest.approx(0.05, rel=0.1)
     assert found.depth_m == pytest.approx(0.22, abs=0.01)
+
+
+@pytest.mark.parametrize("gap_m", [0.20, 0.23])
+def test_overlapping_air_filled_pipes_are_both_found_on_their_tops(gap_m: float) -> None:
+    """A tee's main and branch at one depth: hyperbolas cross, and each inner echo outshines its top."""
+    main = SyntheticTarget(0.7, 0.22, 0.045, amplitude=0.35, inner_echo=-0.8)
+    branch = SyntheticTarget(0.7 + gap_m, 0.22, 0.03, amplitude=0.35, inner_echo=-0.8)
+    section = interpret_bscan(_line([main, branch]), GPR, CFG, V)
+    assert len(section.detections) == 2
+    for pipe, found in zip([main, branch], section.detections, strict=True):
+        assert found.x_m == pytest.approx(pipe.x_m, abs=0.01)
+        assert found.depth_m == pytest.approx(pipe.depth_m, abs=0.01)  # the inner echo would be ~2.5 cm deeper
+        assert found.radius_m == pytest.approx(pipe.radius_m, rel=0.3)
+
+
+def test_sideways_wander_over_an_oblique_pipe_is_undone() -> None:
+    """The antenna wanders 4 mm off the line over a steel pipe at 60°: the crossing moves by y·cot 60°."""
+    eps_r, angle = 7.0, math.radians(60.0)
+    u = np.array([math.cos(angle), math.sin(angle), 0.0])
+    centre = np.array([0.8, 0.0, -0.15])
+    pipe = Pipe("steel", np.array([centre - 0.6 * u, centre + 0.6 * u]), 0.03, "metal")
+    scene = Scene("wander", "", Slab((2.0, 1.2), (-0.2, -0.6), 0.42, eps_r, 18.0), (pipe,), None, None)
+    x = np.arange(0.0, 1.6, 0.005)
+    y = 0.004 * np.sin(2.0 * math.pi * x / 0.4 + 0.7)
+    data = simulate_bscan(scene, np.column_stack([x, y]), GPR, np.random.default_rng(3))
+    line = prepare_line(BScan(data, GPR.dt_ns, GPR.pre_trigger_ns, np.column_stack([x, y, 0 * x]), x / 0.1), GPR)
+    assert np.max(np.abs(line.lateral_m - (y - y.mean())[::2][: len(line.x_m)])) < 0.001
+    v = velocity_from_eps(eps_r)
+    (h,) = hyperbolas_of_line(line, v, GPR, CFG)
+    lateral = np.interp(h.x_m, line.x_m, line.lateral_m)
+    prior = (math.sin(angle), 0.01)
+    corrected = fit_cylinder(h.x_m, h.t_ns, v, GPR, sin_prior=prior, lateral_m=lateral, cot_sign=1.0)
+    ignored = fit_cylinder(h.x_m, h.t_ns, v, GPR, sin_prior=prior)
+    assert corrected.radius_m == pytest.approx(0.03, rel=0.1)
+    assert corrected.depth_m == pytest.approx(0.15, abs=0.003)
+    assert abs(ignored.radius_m / 0.03 - 1.0) > 2.5 * abs(corrected.radius_m / 0.03 - 1.0)
 
 
 def test_velocity_estimated_when_unknown() -> None:

@@ -11,14 +11,16 @@ from scipy import optimize
 from gprbot.config import GprConfig, InterpretationConfig
 from gprbot.errors import InterpretationError
 from gprbot.gpr.bscan import BScan, SyntheticTarget, synthetic_bscan
+from gprbot.gpr.hyperbola import HyperbolaPicks, hyperbolas_of_line
+from gprbot.gpr.line_model import prepare_line
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import (
     V_GUESS_M_PER_NS,
-    HyperbolaPicks,
+    chain_radii,
     estimate_velocity,
-    hyperbolas_of_line,
+    link_crossing_angles,
     link_crossings,
-    prepare_line,
+    pipe_chains,
 )
 
 CFG = InterpretationConfig()
@@ -74,6 +76,34 @@ def test_crossing_angle_from_neighbouring_lines() -> None:
     assert sines[1][0] == pytest.approx(math.sin(angle), abs=1e-9)
     assert sines[0][0] == pytest.approx(math.sin(angle), abs=1e-9)
     assert sines[1][1] is None
+
+
+@pytest.mark.parametrize("angle_deg", [55.0, 125.0])
+def test_crossing_angle_sign_says_which_way_the_pipe_leans(angle_deg: float) -> None:
+    angle = math.radians(angle_deg)
+    apices = [[(np.array([0.5 + y / math.tan(angle), y]), 2.0, -1.0)] for y in (0.0, 0.1, 0.2)]
+    for direction in (np.array([1.0, 0.0]), np.array([-1.0, 0.0])):  # boustrophedon: either sense
+        (middle,) = link_crossing_angles(apices, [direction] * 3)[1]
+        assert middle is not None
+        assert middle[0] == pytest.approx(math.sin(angle), abs=1e-9)
+        assert middle[1] == math.copysign(1.0, 1.0 / math.tan(angle))
+
+
+def test_chains_link_one_pipe_across_lines_and_share_its_radius() -> None:
+    # Two pipes: one at 55°, seen on four lines; one perpendicular and deeper (another apex time).
+    angle = math.radians(55.0)
+    lines_y = (0.0, 0.1, 0.2, 0.3)
+    apices = [[(np.array([0.5 + y / math.tan(angle), y]), 2.0, -1.0), (np.array([1.4, y]), 3.5, -1.0)]
+              for y in lines_y]
+    chains = pipe_chains(apices)
+    assert len({c[0] for c in chains}) == 1 and len({c[1] for c in chains}) == 1
+    assert chains[0][0] != chains[0][1]
+    flat = [c for line in chains for c in line]
+    radii = [0.030, 0.020, 0.050, 0.019, 0.013, 0.060, 0.031, 0.021]  # line by line: a and b, each with outliers
+    shared = chain_radii(flat, radii)
+    assert shared[chains[0][0]] == pytest.approx(0.0305)
+    assert shared[chains[0][1]] == pytest.approx(0.0205)
+    assert chain_radii(flat[:4], radii[:4]) == {}  # two lines per pipe are too few to vote
 
 
 def test_no_hyperbola_means_no_velocity() -> None:

@@ -1,10 +1,12 @@
 """Classical interpretation of one B-scan: pipes as cylinders fitted to the picked hyperbolas.
 
-For every hyperbola (see `velocity`), with the velocity fixed, a cylinder is fitted to the picks:
-centre along-track x0, centre depth dc, radius R and the crossing angle's sine s (an oblique pipe
-gives a wider hyperbola; with v known the far flanks separate s from R). An air-filled PVC pipe's
-inner-bottom echo (opposite polarity, 4R/c later) biases the top pick when the two overlap; it is
-modelled at the apex, the bias removed, and its delay gives R independently of the velocity.
+For every hyperbola (see `hyperbola`), with the velocity fixed, a cylinder is fitted to the picks
+(`cylinder`): centre along-track x0, centre depth dc and the crossing angle's sine s, with priors
+from the neighbouring lines (`velocity.CrossingHint`). The radius R is held: an air-filled PVC pipe's
+inner-bottom echo (opposite polarity, 4R/c later) gives it independently of the velocity — the echo
+is modelled at the apex and its bias on the top pick removed, and when the inner echo is the
+stronger one, tracked instead of the top, the top is found before it; any other pipe takes the
+median radius of its hyperbolas on all lines (one line alone barely tells R from the depth).
 
 The cross-section mask is the union of the fitted cross-sections — ellipses R/s wide and R high in
 the vertical plane of the line — kept where the migrated image shows energy on the pipe's top.
@@ -18,29 +20,19 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize
 
 from gprbot.config import GprConfig, InterpretationConfig
 from gprbot.gpr.bscan import BScan, CrossSection, Detection, check_bscan, ricker
+from gprbot.gpr.cylinder import DEFAULT_SIN_STD, MIN_SIN_CROSS, CylinderFit, fit_cylinder
+from gprbot.gpr.hyperbola import MAX_RADIUS_M, HyperbolaPicks, hyperbolas_of_line, without_interference
+from gprbot.gpr.line_model import LineData, matched_filter, prepare_line
 from gprbot.gpr.migration import depth_axis, envelope, migrate, resample_uniform
 from gprbot.gpr.preprocess import dewow, preprocess
 from gprbot.gpr.traveltime import C_M_PER_NS, velocity_from_eps
 from gprbot.gpr.velocity import (
-    DEFAULT_SIN_STD,
-    MAX_RADIUS_M,
-    MIN_SIN_CROSS,
-    PICK_STD_NS,
     CrossingHint,
-    HyperbolaPicks,
-    LineData,
     VelocityEstimate,
-    cylinder_times,
-    depth_for_apex_time,
     estimate_velocity,
-    hyperbolas_of_line,
-    matched_filter,
-    prepare_line,
-    without_interference,
 )
 
 __all__ = [
@@ -50,71 +42,8 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 _APEX_TRACES = 3  # traces either side of the apex stacked for the inner-echo analysis
+_MIN_INNER_RATIO = -3.0  # inner-bottom / top echo of an air-filled pipe: about −0.8 to −2
 _HINT_RADIUS_M = 0.06  # a crossing hint applies to a hyperbola whose apex lies this close
-
-
-@dataclass(frozen=True)
-class CylinderFit:
-    """A pipe fitted to one hyperbola: centre (x0, dc), radius, crossing sine, RMS misfit (ns), picks used."""
-
-    x0_m: float
-    depth_m: float
-    radius_m: float
-    sin_cross: float
-    rms_ns: float
-    n_picks: int
-    inner_echo: bool
-
-
-def fit_cylinder(
-    x_m: FloatArray, t_ns: FloatArray, v: float, gpr: GprConfig, *,
-    sin_prior: tuple[float, float] = (1.0, DEFAULT_SIN_STD),
-    radius_m: float | None = None,
-) -> CylinderFit:
-    """Least-squares cylinder (x0, dc, R, s) through picks at a known velocity, outliers rejected.
-
-    `sin_prior` (mean, std) is a prior on the crossing sine s — from the neighbouring lines, or
-    "about at right angles" — because on one line s trades off against R. With `radius_m` given the
-    radius is held (it came from the inner echo). A robust fit from several starts, then picks off
-    by more than 3σ after a redescending (Cauchy) fit — crossing flanks — are dropped and it is refitted.
-    """
-    apex = int(np.argmin(t_ns))
-    z_top = depth_for_apex_time(float(t_ns[apex]), v, gpr)
-    x_apex = float(x_m[apex])
-    s_mean, s_std = sin_prior
-    held = radius_m is not None
-    lb = [x_apex - 0.2, 0.005, MIN_SIN_CROSS] + ([] if held else [0.0])
-    ub = [x_apex + 0.2, 3.0, 1.0] + ([] if held else [MAX_RADIUS_M])
-    keep = np.ones(len(x_m), dtype=bool)
-
-    def radius_of(p: FloatArray) -> float:
-        return float(radius_m) if radius_m is not None else float(p[3])
-
-    def residual(p: FloatArray) -> FloatArray:
-        times = cylinder_times(x_m[keep], p[0], p[1], radius_of(p), v, gpr, p[2]) - t_ns[keep]
-        return np.append(times, PICK_STD_NS * (p[2] - s_mean) / s_std)
-
-    best: optimize.OptimizeResult | None = None
-    starts = sorted({min(1.0, s_mean), 0.75}) if s_std >= DEFAULT_SIN_STD else [min(1.0, s_mean)]
-    for r0 in [float(radius_m)] if radius_m is not None else [0.01, 0.04]:
-        for s0 in starts:
-            p0 = [x_apex, z_top + r0, s0] + ([] if held else [r0])
-            sol = optimize.least_squares(residual, np.clip(p0, lb, ub), bounds=(lb, ub), loss="soft_l1",
-                                         f_scale=0.01, x_scale="jac")
-            if best is None or sol.cost < best.cost:
-                best = sol
-    assert best is not None
-    # A redescending loss lets crossing flanks go, then they are dropped for good.
-    best = optimize.least_squares(residual, best.x, bounds=(lb, ub), loss="cauchy", f_scale=0.004, x_scale="jac")
-    r = residual(best.x)[:-1]
-    sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-    keep = np.abs(r) < max(3.0 * sigma, 0.008)
-    if keep.sum() >= 5:
-        best = optimize.least_squares(residual, best.x, bounds=(lb, ub), loss="soft_l1", f_scale=0.004,
-                                      x_scale="jac")
-    r = residual(best.x)[:-1]
-    return CylinderFit(float(best.x[0]), float(best.x[1]), radius_of(best.x), float(best.x[2]),
-                       math.sqrt(float(np.mean(r**2))), int(keep.sum()), held)
 
 
 def _wavelet_response(line: LineData) -> tuple[FloatArray, FloatArray]:
@@ -172,6 +101,37 @@ def inner_echo(line: LineData, h: HyperbolaPicks) -> tuple[float, float, float] 
     return best[1], best[2], best[3]
 
 
+def top_before_inner(line: LineData, h: HyperbolaPicks) -> tuple[HyperbolaPicks, tuple[float, float, float]] | None:
+    """When h is an air-filled pipe's inner-bottom echo (stronger than its top): the top's picks and echo.
+
+    The inner echo has the opposite polarity to the direct wave; the top precedes it by Δ ≤ 4R/c with
+    the direct wave's polarity. The delay where the apex traces, shifted by Δ, stack best is checked
+    with `inner_echo` on the shifted picks; a top far weaker than the inner echo (a steel pipe's side
+    lobe: ratio below −3) is not one.
+    """
+    if h.polarity == line.direct_polarity:
+        return None
+    near = np.argsort(np.abs(h.x_m - h.apex_x_m))[: 2 * _APEX_TRACES + 1]
+    dx = float(line.x_m[1] - line.x_m[0])
+    cols = np.round((h.x_m[near] - float(line.x_m[0])) / dx).astype(np.intp)
+    delays = np.arange(0.25 * line.period_ns, 4.0 * MAX_RADIUS_M / C_M_PER_NS, line.dt_ns / 2.0)
+    samples = (h.t_ns[near][None, :] - delays[:, None] + line.t0_ns) / line.dt_ns
+    index = np.arange(line.data.shape[1])
+    stack = np.array([
+        np.mean([np.interp(samples[i, k], index, line.data[c]) for k, c in enumerate(cols)])
+        for i in range(len(delays))
+    ]) * line.direct_polarity
+    best = int(np.argmax(stack))
+    if stack[best] <= 4.0 * line.noise:
+        return None
+    delay = float(delays[best])
+    top = replace(h, t_ns=h.t_ns - delay, apex_t_ns=h.apex_t_ns - delay, polarity=line.direct_polarity)
+    echo = inner_echo(line, top)
+    if echo is None or echo[2] < _MIN_INNER_RATIO:
+        return None
+    return top, echo
+
+
 def _score(h: HyperbolaPicks, fit: CylinderFit, line: LineData) -> float:
     """Confidence in [0, 1]: apex signal-to-noise, number of picks, and how well the cylinder fits."""
     snr = abs(h.apex_amplitude) / line.noise
@@ -193,15 +153,14 @@ def _drop_rebar_rows(found: list[tuple[Detection, CylinderFit]]) -> list[tuple[D
     return [f for k, f in enumerate(found) if k not in drop]
 
 
-def _sin_prior(bscan: BScan, h: HyperbolaPicks, hints: Sequence[CrossingHint]) -> tuple[float, float]:
-    """Prior on a hyperbola's crossing sine: the nearest crossing hint, else "about at right angles"."""
+def _crossing_prior(bscan: BScan, h: HyperbolaPicks, hints: Sequence[CrossingHint]) -> CrossingHint:
+    """Prior on a hyperbola's crossing angle: the nearest crossing hint, else "about at right angles"."""
     xy = bscan.position_at(h.point_model[0])[:2]
-    near = [(math.hypot(c.xy[0] - xy[0], c.xy[1] - xy[1]), c.sin_cross, c.sin_std) for c in hints]
+    near = [(math.hypot(c.xy[0] - xy[0], c.xy[1] - xy[1]), k) for k, c in enumerate(hints)]
     close = [n for n in near if n[0] < _HINT_RADIUS_M]
     if not close:
-        return 1.0, DEFAULT_SIN_STD
-    _, sin_cross, sin_std = min(close)
-    return sin_cross, sin_std
+        return CrossingHint((float(xy[0]), float(xy[1])), 1.0, DEFAULT_SIN_STD)
+    return hints[min(close)[1]]
 
 
 def detect_pipes(
@@ -211,13 +170,21 @@ def detect_pipes(
     """Pipes of one line at a known velocity: track hyperbolas, fit cylinders, score, drop rebar rows."""
     found: list[tuple[Detection, CylinderFit]] = []
     for h in without_interference(hyperbolas_of_line(line, v, gpr, cfg), gpr):
-        prior = _sin_prior(bscan, h, hints)
-        # Only an echo of the direct wave's polarity (lower permittivity: air) has a strong inner echo.
+        hint = _crossing_prior(bscan, h, hints)
+        prior = (hint.sin_cross, hint.sin_std)
+        lateral = np.interp(h.x_m, line.x_m, line.lateral_m)
+        # Only an echo of the direct wave's polarity (lower permittivity: air) has a strong inner echo,
+        # which may be the stronger of the two and the one that was tracked.
         echo = inner_echo(line, h) if h.polarity == line.direct_polarity else None
-        if echo is not None:
-            fit = fit_cylinder(h.x_m, h.t_ns + echo[0], v, gpr, sin_prior=prior, radius_m=echo[1] * C_M_PER_NS / 4.0)
-        else:
-            fit = fit_cylinder(h.x_m, h.t_ns, v, gpr, sin_prior=prior)
+        below = top_before_inner(line, h)
+        if below is not None:
+            h, echo = below
+        # The radius: from the inner echo's delay, else the pipe's from all lines that saw it.
+        held = hint.radius_m if echo is None else echo[1] * C_M_PER_NS / 4.0
+        times = h.t_ns if echo is None else h.t_ns + echo[0]
+        fit = fit_cylinder(h.x_m, times, v, gpr, sin_prior=prior, radius_m=held, lateral_m=lateral,
+                           cot_sign=hint.cot_sign)
+        fit = replace(fit, inner_echo=echo is not None)
         if fit.radius_m > 0.95 * MAX_RADIUS_M or fit.depth_m - fit.radius_m > cfg.depth_max_m:
             continue  # a flat event (shadow, layer) or beyond the image
         detection = Detection(fit.x0_m, fit.depth_m, fit.radius_m, _score(h, fit, line))

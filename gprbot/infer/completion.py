@@ -24,8 +24,10 @@ from gprbot.infer.register import SliceCloud
 from gprbot.infer.rods import sample_rods
 from gprbot.infer.slice_blobs import SurveyFrame, split_slice, survey_frame
 
-JOIN_MARGIN_M = 0.01  # a pipe end runs into another pipe when its axis passes within R + this of it
-JOIN_REACH_LINES = 2.0  # how far past its last sighting (in line spacings) a pipe may still reach another
+JOIN_MARGIN_M = 0.01  # a pipe end runs into another pipe when its axis passes within R + this of it, ...
+JOIN_SLACK_PER_M = 0.05  # ... plus this per metre it was extended (a direction from few centres is a few % off)
+JOIN_REACH_LINES = 3.0  # how far past its last sighting (in line spacings) a pipe may still reach another:
+# a branch within ~0.15 m of its main hides in the main's hyperbola, two lines on each side of a 60° tee
 
 
 @dataclass(frozen=True)
@@ -82,14 +84,16 @@ def _end_joins(
         ends: list[tuple[int, NDArray[np.float64]] | None] = []
         for side, point in ((0, fit.inner_axis[0]), (1, fit.inner_axis[-1])):
             outward = fit.outward[side]
-            ray_end = point + outward * extension_length(outward, JOIN_REACH_LINES * frame.spacing_m, frame)
+            reach = extension_length(outward, JOIN_REACH_LINES * frame.spacing_m, frame)
+            ray_end = point + outward * reach
             best: tuple[float, int, NDArray[np.float64]] | None = None
             for q, other in enumerate(axes):
                 if q == p:
                     continue
                 for a, b in itertools.pairwise(other):
                     s, _, distance = closest_points_of_segments(point, ray_end, a, b)
-                    if distance <= fits[q].radius_m + JOIN_MARGIN_M and (best is None or s < best[0]):
+                    gate = fits[q].radius_m + JOIN_MARGIN_M + JOIN_SLACK_PER_M * s * reach
+                    if distance <= gate and (best is None or s < best[0]):
                         best = (s, q, point + s * (ray_end - point))
             ends.append(None if best is None else (best[1], best[2]))
         joins.append(ends)

@@ -161,6 +161,17 @@ def fit_radius(points: NDArray[np.float64], axis: NDArray[np.float64]) -> float:
     return float(np.sqrt(2.0 * np.mean(distances**2)))
 
 
+def median_section_radius(blobs: Sequence[Blob], axis: NDArray[np.float64]) -> float:
+    """The median over the lines of each section's radius (`fit_radius`).
+
+    Every line measures the radius once. Pooling all points instead weighs each line by its point
+    count, which grows as R², so one line whose section came out too wide (a neighbour's flank, a
+    merged blob) pulls the radius up: measured on the cluttered scene, 3.3 cm pooled against 3.1 cm
+    median for a 2.5 cm pipe whose ten sections gave 2.3–4.3 cm.
+    """
+    return float(np.median([fit_radius(b.points, axis) for b in blobs]))
+
+
 def fit_pipe(blobs: Sequence[Blob], frame: SurveyFrame) -> PipeFit:
     """Fit axis, radius and confidence to one track's blobs (in cross-track order)."""
     consistent = blob_consistency(blobs, frame)
@@ -171,7 +182,7 @@ def fit_pipe(blobs: Sequence[Blob], frame: SurveyFrame) -> PipeFit:
     inner = axis_through_centres(centres, frame)
     outward = outward_directions(inner, frame)
     long_axis = extend_axis(inner, outward, (RADIUS_AXIS_EXTENSION_M, RADIUS_AXIS_EXTENSION_M))
-    radius = fit_radius(np.concatenate([b.points for b in used]), long_axis)
+    radius = median_section_radius(used, long_axis)
     residual = float(np.sqrt(np.mean(distance_to_polyline(centres, inner) ** 2)))
     n = len(blobs)
     confidence = (

@@ -28,12 +28,14 @@ DEPTH_GATE_M = 0.03
 DEPTH_GATE_PER_M = 0.3
 HEIGHT_GATE_FRACTION = 0.35
 # A track seen once is most often speckle, so its first link has tighter gates: a pipe's section
-# predicts its next crossing well from its shape, its size to within a few %, and slopes stay < ~15 %.
+# predicts its next crossing well from its shape, and slopes stay < ~15 %. Its size less so: one pipe's
+# sections from the classical interpreter differ by up to ~30 % between lines (a tee's branch beside
+# its main: 4.2 and 5.6 cm), so the height gate is a quarter of the larger height.
 FIRST_LINK_GATE_FRACTION = 0.5  # of cluster_distance_m
 SHAPE_GATE_PER_M = 0.4
 FIRST_LINK_DEPTH_GATE_M = 0.01
 FIRST_LINK_DEPTH_GATE_PER_M = 0.15
-FIRST_LINK_HEIGHT_FRACTION = 0.2
+FIRST_LINK_HEIGHT_FRACTION = 0.25
 MAX_MISSED_LINES = 2
 ONE_SIGHTING_PENALTY = 0.3  # prefer continuing established tracks over tracks seen once
 MISS_PENALTY = 0.5  # per missed line
@@ -63,7 +65,8 @@ class Prediction:
     height: float
     gate_along: float
     gate_z: float
-    gate_height: float
+    height_fraction: float  # the height gate: this fraction of the larger of the two heights, ...
+    height_pad: float  # ... plus this (pixels)
     penalty: float
     established: bool
 
@@ -73,7 +76,6 @@ def predict(track: Track, offset: float, frame: SurveyFrame, cluster_distance_m:
     last = track.blobs[-1]
     gap = abs(offset - last.offset)
     height = float(np.median([b.height_m for b in track.blobs]))
-    gate_height = HEIGHT_GATE_FRACTION * height + 2.0 * last.pitch[1]
     missed = max(0.0, gap / frame.spacing_m - 1.0)
     gate_z = DEPTH_GATE_M + DEPTH_GATE_PER_M * gap
     if len(track.blobs) >= 2:
@@ -88,7 +90,8 @@ def predict(track: Track, offset: float, frame: SurveyFrame, cluster_distance_m:
                 height=height,
                 gate_along=cluster_distance_m + TURN_GATE_PER_M * gap,
                 gate_z=gate_z,
-                gate_height=gate_height,
+                height_fraction=HEIGHT_GATE_FRACTION,
+                height_pad=2.0 * last.pitch[1],
                 penalty=MISS_PENALTY * missed,
                 established=True,
             )
@@ -100,18 +103,24 @@ def predict(track: Track, offset: float, frame: SurveyFrame, cluster_distance_m:
         height=height,
         gate_along=FIRST_LINK_GATE_FRACTION * cluster_distance_m + SHAPE_GATE_PER_M * gap,
         gate_z=FIRST_LINK_DEPTH_GATE_M + FIRST_LINK_DEPTH_GATE_PER_M * gap,
-        gate_height=FIRST_LINK_HEIGHT_FRACTION * height + 0.5 * last.pitch[1],
+        height_fraction=FIRST_LINK_HEIGHT_FRACTION,
+        height_pad=0.5 * last.pitch[1],
         penalty=ONE_SIGHTING_PENALTY + MISS_PENALTY * missed,
         established=False,
     )
 
 
 def match_cost(prediction: Prediction, blob: Blob) -> float:
-    """Normalised squared residual of a blob against a prediction; _INFEASIBLE outside the gates."""
+    """Normalised squared residual of a blob against a prediction; _INFEASIBLE outside the gates.
+
+    The height gate is a fraction of the larger height, so that linking two sections does not depend
+    on which of them the track saw first.
+    """
+    gate_height = prediction.height_fraction * max(prediction.height, blob.height_m) + prediction.height_pad
     ratios = (
         min(abs(blob.along - a) for a in prediction.along) / prediction.gate_along,
         abs(float(blob.centre[2]) - prediction.z) / prediction.gate_z,
-        abs(blob.height_m - prediction.height) / prediction.gate_height,
+        abs(blob.height_m - prediction.height) / gate_height,
     )
     if max(ratios) > 1.0:
         return _INFEASIBLE
