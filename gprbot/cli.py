@@ -47,7 +47,11 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
     import asyncio
     import dataclasses
 
+    from gprbot.demo import survey_region
+    from gprbot.evaluation import compare_to_truth, format_truth_table, within_bounds
+    from gprbot.infer.outputs import read_pipes_json
     from gprbot.robot.shell_demo import survey_via_shell
+    from gprbot.sim.scene import load_scene
 
     if args.scene == "all":
         raise GprbotError("--via-daemon surveys one scene: name it with --scene")
@@ -57,7 +61,15 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
     print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)")
     result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", flush=True)))
     print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}")
-    return result.exit_status
+    # The operator's copy of pipes.json, judged against the simulated scene's truth.
+    found = read_pipes_json(dest / "pipes.json")
+    matches, extras = compare_to_truth(found, load_scene(cfg.sim.scene), survey_region(cfg))
+    print(format_truth_table(matches, extras, found))
+    ok = within_bounds(matches)
+    print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if ok else 'NO'}")
+    if result.exit_status != 0:
+        return result.exit_status
+    return 0 if ok or not args.check else 3
 
 
 def _cmd_info(args: argparse.Namespace) -> int:

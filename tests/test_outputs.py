@@ -9,8 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from gprbot.errors import DataFormatError
 from gprbot.infer.completion import PipeModel, Reconstruction, pipe_colors
-from gprbot.infer.outputs import atomic_open, write_json_atomic, write_pipes_json
+from gprbot.infer.outputs import atomic_open, read_pipes_json, write_json_atomic, write_pipes_json
 from gprbot.infer.topdown import MAP_SIDE_PX, MARGIN_PX, render_topdown
 
 
@@ -108,3 +109,20 @@ def test_topdown_map_draws_pipes_truth_and_lines(tmp_path: Path) -> None:
 def test_topdown_refuses_an_empty_extent(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="extent"):
         render_topdown(tmp_path / "map.png", reconstruction(), (1.0, 1.0, 0.0, 1.0))
+
+
+def test_pipes_json_reads_back_as_pipe_models_and_refuses_other_files(tmp_path: Path) -> None:
+    recon = reconstruction()
+    write_pipes_json(tmp_path / "pipes.json", recon, {"run": "r"})
+    back = read_pipes_json(tmp_path / "pipes.json")
+    assert len(back) == 2
+    for got, want in zip(back, recon.pipes, strict=True):
+        np.testing.assert_allclose(got.axis, want.axis, atol=1e-6)
+        assert got.diameter_m == pytest.approx(want.diameter_m, abs=1e-6)
+        assert got.ends_on == want.ends_on
+    (tmp_path / "other.json").write_text('{"format": "something-else"}')
+    with pytest.raises(DataFormatError, match="not a gprbot pipes file"):
+        read_pipes_json(tmp_path / "other.json")
+    (tmp_path / "cut.json").write_text((tmp_path / "pipes.json").read_text()[:100])
+    with pytest.raises(DataFormatError, match="unreadable pipes file"):
+        read_pipes_json(tmp_path / "cut.json")

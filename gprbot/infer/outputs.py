@@ -12,7 +12,8 @@ from typing import IO, Any
 
 import numpy as np
 
-from gprbot.infer.completion import Reconstruction, pipe_colors
+from gprbot.errors import DataFormatError
+from gprbot.infer.completion import PipeModel, Reconstruction, pipe_colors
 from gprbot.infer.polyline import polyline_length
 
 PIPES_FORMAT = "gprbot-pipes"
@@ -126,3 +127,25 @@ def pipes_document(reconstruction: Reconstruction, meta: Mapping[str, Any]) -> d
 def write_pipes_json(path: str | os.PathLike[str], reconstruction: Reconstruction, meta: dict[str, Any]) -> None:
     """Write pipes.json: per pipe its axis (m, site frame), depth of cover, diameter, confidence, slices."""
     write_json_atomic(path, pipes_document(reconstruction, meta))
+
+
+def read_pipes_json(path: str | os.PathLike[str]) -> list[PipeModel]:
+    """The pipes of a pipes.json (ours, e.g. pulled from a robot) as PipeModels; DataFormatError if malformed."""
+    try:
+        document = json.loads(Path(path).read_text())
+        if document.get("format") != PIPES_FORMAT:
+            raise DataFormatError(f"{path}: not a gprbot pipes file (format {document.get('format')!r})")
+        return [
+            PipeModel(
+                axis=np.asarray(p["axis_m"], dtype=np.float64).reshape(-1, 3),
+                radius_m=float(p["diameter_m"]) / 2,
+                depth_of_cover_m=float(p["depth_of_cover_m"]),
+                diameter_m=float(p["diameter_m"]),
+                confidence=float(p["confidence"]),
+                n_slices=int(p["n_slices"]),
+                ends_on=(p["ends_on"]["start"], p["ends_on"]["end"]),
+            )
+            for p in document["pipes"]
+        ]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise DataFormatError(f"{path}: unreadable pipes file ({exc}); pull it again") from exc
