@@ -20,6 +20,7 @@ from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import CrossingHint
 from gprbot.infer.completion import Reconstruction, geometric_completion
+from gprbot.infer.migrationnet import MigrationNetInterpreter
 from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
 
 
@@ -54,10 +55,18 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float,
 
 
 def interpret_line(
-    line: int, processed: BScan, cfg: Config, velocity: float, hints: Sequence[CrossingHint] = ()
+    line: int,
+    processed: BScan,
+    cfg: Config,
+    velocity: float,
+    hints: Sequence[CrossingHint] = (),
+    interpreter: MigrationNetInterpreter | None = None,
 ) -> LineResult:
-    """Interpret one preprocessed line and register its cross-section in 3D."""
-    section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
+    """Interpret one preprocessed line (MigrationNet when given, else classical) and register it in 3D."""
+    if interpreter is not None:
+        section = interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
+    else:
+        section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
     cols = processed.position_at(section.x_m)
     return LineResult(line, processed, section, register_slice(line, section.mask, section.z_m, cols))
 
@@ -74,7 +83,8 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     timings["velocity"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    lines = tuple(interpret_line(line, b, cfg, velocity, hints) for line, b in processed.items())
+    interpreter = MigrationNetInterpreter(threads=2) if cfg.interpretation.method == "migrationnet" else None
+    lines = tuple(interpret_line(line, b, cfg, velocity, hints, interpreter) for line, b in processed.items())
     timings["interpret"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

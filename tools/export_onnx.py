@@ -1,0 +1,184 @@
+"""Export a trained checkpoint to a single-file ONNX model with its model card, after a parity check.
+
+    python tools/export_onnx.py migrationnet --checkpoint training/checkpoints/migrationnet_best.pt \
+        --out models/migrationnet.onnx
+    python tools/export_onnx.py gprnet --checkpoint training/checkpoints/gprnet_best.pt --out models/gprnet.onnx
+
+A checkpoint is a torch.save dict: "model" (state dict), "model_config" (builder kwargs), "epoch",
+"seed", "metrics", "data" (a description of the training data) and optionally "export" (overrides
+of the registry entry's inputs/outputs/units). The card `models/NAME.json` records inputs and
+outputs with shapes and units, normalisation, training data and seed, metrics, sha256, opset and
+the torch version; gprbot.infer.onnx_model.OnnxModel refuses a model that does not match its card.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib
+import json
+import sys
+import warnings
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+OPSET = 17
+
+
+@dataclass(frozen=True)
+class ModelEntry:
+    """How to build and describe one exportable model."""
+
+    builder: str  # "module:function", called with the checkpoint's model_config
+    inputs: tuple[tuple[str, tuple[int, ...], str], ...]  # (name, shape without batch, units)
+    outputs: tuple[tuple[str, tuple[int, ...], str], ...]
+    normalisation: str
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _migrationnet_entry() -> ModelEntry:
+    from gprbot.infer import migrationnet as rt
+
+    return ModelEntry(
+        "training.migrationnet:build_migrationnet",
+        ((rt.INPUT_NAME, (1, rt.ROWS, rt.COLS),
+          f"preprocessed B-scan resampled to depth: rows every {rt.DZ_M * 1000:.4g} mm from the surface "
+          f"(pixel centres), columns every {rt.DX_M * 100:g} cm along track; dimensionless"),),
+        ((rt.OUTPUT_NAME, (1, rt.ROWS, rt.COLS), "probability (0-1) that the pixel lies inside a pipe"),),
+        "gprbot.infer.migrationnet.depth_section: preprocess (dewow, time zero, background, gain), uniform "
+        f"{rt.DX_M} m along-track bins, time→depth with the survey velocity (straight-down two-way time with "
+        f"antenna height and Tx-Rx offset), amplitudes / 99.5th percentile of |a| over the line, clipped to "
+        f"±{rt.CLIP}",
+        {"grid": {"dx_m": rt.DX_M, "dz_m": rt.DZ_M, "rows": rt.ROWS, "cols": rt.COLS, "clip": rt.CLIP,
+                  "depth_m": rt.DEPTH_M},
+         "reproduce": [
+             "python -m training.migration_data --split train --split val --workers 2",
+             "python -m training.train_migrationnet --epochs 3 --seed 0",
+             "cp training/checkpoints/migrationnet_best.pt training/checkpoints/migrationnet_stage1.pt",
+             "python -m training.train_migrationnet --init training/checkpoints/migrationnet_stage1.pt "
+             "--name migrationnet_ft --epochs 2 --lr 1e-3 --seed 1",
+             "python -m training.train_migrationnet --calibrate training/checkpoints/migrationnet_ft_best.pt",
+             "python tools/export_onnx.py migrationnet --checkpoint training/checkpoints/migrationnet_ft_best.pt "
+             "--out models/migrationnet.onnx",
+             "python -m training.eval_migration --model models/migrationnet.onnx "
+             "--checkpoint training/checkpoints/migrationnet_ft_best.pt",
+         ],
+         "evaluation": "models/migrationnet_eval.md"},
+    )
+
+
+def _cloud_entry(builder: str) -> ModelEntry:
+    return ModelEntry(
+        f"training.pointcloud_models:{builder}",
+        (("sparse_points", (1500, 3), "sparse cloud normalised to the unit cube (see the card's normalisation)"),),
+        (("dense_points", (8192, 3), "dense cloud in the same normalised frame"),),
+        "points centred on the sparse cloud's bounding-box centre and divided by its longest side",
+    )
+
+
+REGISTRY = {
+    "migrationnet": _migrationnet_entry,
+    "gprnet": lambda: _cloud_entry("build_gprnet"),
+    "pcn": lambda: _cloud_entry("build_pcn"),
+    "pfnet": lambda: _cloud_entry("build_pfnet"),
+}
+
+
+def _with_overrides(entry: ModelEntry, overrides: dict[str, Any]) -> ModelEntry:
+    """Apply a checkpoint's "export" dict (inputs/outputs as [name, shape, units] lists, normalisation)."""
+    changes: dict[str, Any] = {}
+    for key in ("inputs", "outputs"):
+        if key in overrides:
+            changes[key] = tuple((str(n), tuple(int(d) for d in s), str(u)) for n, s, u in overrides[key])
+    if "normalisation" in overrides:
+        changes["normalisation"] = str(overrides["normalisation"])
+    return replace(entry, **changes)
+
+
+def sha256_of(path: Path) -> str:
+    """Hex sha256 of a file."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def export(model_name: str, checkpoint: Path, out: Path, batch: int = 2) -> dict[str, Any]:
+    """Export, check parity with PyTorch eager, write the card; returns the card."""
+    import onnxruntime as ort
+    import torch
+
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    entry = _with_overrides(REGISTRY[model_name](), state.get("export", {}))
+    module_name, function = entry.builder.split(":")
+    model = getattr(importlib.import_module(module_name), function)(**state.get("model_config", {}))
+    model.load_state_dict(state["model"])
+    model.eval()
+    generator = torch.Generator().manual_seed(0)
+    example = tuple(torch.randn(batch, *shape, generator=generator) for _, shape, _ in entry.inputs)
+    names_in = [n for n, _, _ in entry.inputs]
+    names_out = [n for n, _, _ in entry.outputs]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings():
+        # the legacy exporter announces its deprecation; the torch.export-based one needs onnxscript,
+        # which this environment lacks
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(
+            model, example, str(out), input_names=names_in, output_names=names_out,
+            dynamic_axes={n: {0: "batch"} for n in names_in + names_out}, opset_version=OPSET,
+            dynamo=False, external_data=False,
+        )
+    with torch.no_grad():
+        eager = model(*example)
+    eager_list = [eager] if isinstance(eager, torch.Tensor) else list(eager)
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    onnx_out = session.run(None, {n: t.numpy() for n, t in zip(names_in, example, strict=True)})
+    diff = max(float(np.max(np.abs(a.numpy() - b))) for a, b in zip(eager_list, onnx_out, strict=True))
+    print(f"parity: max |onnxruntime - torch eager| = {diff:.3g} over batch {batch}")
+    if diff > 1e-3:
+        raise SystemExit(f"parity check failed ({diff:.3g} > 1e-3); the exported graph is not the model")
+
+    def tensors(items: tuple[tuple[str, tuple[int, ...], str], ...]) -> list[dict[str, Any]]:
+        return [{"name": n, "shape": ["batch", *s], "dtype": "float32", "units": u} for n, s, u in items]
+
+    card = {
+        "name": model_name,
+        "onnx_file": out.name,
+        "sha256": sha256_of(out),
+        "size_bytes": out.stat().st_size,
+        "opset": OPSET,
+        "torch_version": torch.__version__,
+        "inputs": tensors(entry.inputs),
+        "outputs": tensors(entry.outputs),
+        "normalisation": entry.normalisation,
+        **entry.extra,
+        "model_config": state.get("model_config", {}),
+        "training": {"data": state.get("data", ""), "seed": state.get("seed"), "epoch": state.get("epoch"),
+                     "checkpoint": str(checkpoint)},
+        "metrics": state.get("metrics", {}),
+        "threshold": float(state.get("metrics", {}).get("threshold", 0.5)),
+        "parity_max_abs_diff": diff,
+        "export_command": f"python tools/export_onnx.py {model_name} --checkpoint {checkpoint} --out {out}",
+    }
+    card_path = out.with_suffix(".json")
+    card_path.write_text(json.dumps(card, indent=2, default=float) + "\n")
+    print(f"wrote {out} ({card['size_bytes'] / 1e6:.2f} MB) and {card_path}")
+    return card
+
+
+def main() -> None:
+    """CLI."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("model", choices=sorted(REGISTRY))
+    parser.add_argument("--checkpoint", type=Path, required=True)
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    export(args.model, args.checkpoint, args.out)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,146 @@
+"""MigrationNet's dataset: simulated survey lines of random scenes → (depth-section tile, true pipe mask).
+
+For each scene of a split (training.random_scenes), a few of its survey lines are simulated with the
+forward model at the true antenna positions, recorded with pose noise, preprocessed and converted to
+depth exactly as at run time (gprbot.infer.migrationnet.depth_section), with the true velocity
+perturbed by a few per cent in training (the survey velocity is an estimate). The target is the
+true cross-section mask (gprbot.sim.truth) on the same grid. Tiles are cached as .npz in training/cache/.
+
+    python -m training.migration_data --split train   # ~1378 scenes × 4 lines × 1 tile
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import dataclass
+from multiprocessing import Pool
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.gpr.bscan import BScan
+from gprbot.gpr.traveltime import velocity_from_eps
+from gprbot.infer.migrationnet import cut_tiles, depth_grid, depth_section
+from gprbot.sim.forward import simulate_bscan
+from gprbot.sim.scene import Scene
+from gprbot.sim.truth import cross_section_mask
+from training.random_scenes import (
+    SurveySpec,
+    gpr_config,
+    line_antenna_xy,
+    recorded_positions,
+    scene_for_seed,
+    split_seeds,
+)
+
+CACHE_DIR = Path(__file__).resolve().parent / "cache"
+CACHE_VERSION = 1
+LINES_PER_SCENE = 4
+VELOCITY_JITTER = 0.03  # relative std of the velocity error in training
+_TRACE_INTERVAL_S = 0.05
+
+
+@dataclass(frozen=True)
+class LineSample:
+    """One simulated line: normalised depth section, true mask, along-track x, line index, velocity used."""
+
+    image: NDArray[np.float32]
+    mask: NDArray[np.bool_]
+    x_m: NDArray[np.float64]
+    line: int
+    velocity_m_per_ns: float
+
+
+def simulate_line(scene: Scene, spec: SurveySpec, line: int, rng: np.random.Generator) -> BScan:
+    """The raw B-scan of one survey line, positions as recorded (with pose noise)."""
+    gpr = gpr_config(spec, scene)
+    true_xy = line_antenna_xy(spec, line)
+    data = simulate_bscan(scene, true_xy, gpr, rng)
+    positions = recorded_positions(true_xy, spec, rng)
+    times = np.arange(len(true_xy)) * _TRACE_INTERVAL_S
+    return BScan(data, gpr.dt_ns, gpr.pre_trigger_ns, positions, times)
+
+
+def line_sample(scene: Scene, spec: SurveySpec, line: int, rng: np.random.Generator,
+                velocity_jitter: float = 0.0) -> LineSample:
+    """Simulate one line and build its network input and true mask."""
+    bscan = simulate_line(scene, spec, line, rng)
+    v = velocity_from_eps(scene.slab.eps_r) * (1.0 + velocity_jitter * float(rng.standard_normal()))
+    image, x = depth_section(bscan, gpr_config(spec, scene), v)
+    columns = np.stack([spec.start_xy[0] + x, np.full(len(x), spec.line_y(line))], axis=1)
+    mask = cross_section_mask(scene, columns, depth_grid())
+    return LineSample(image, mask, x, line, v)
+
+
+def scene_tiles(seed: int, split: str) -> tuple[NDArray[np.float16], NDArray[np.uint8]]:
+    """Tiles (n, 1, ROWS, COLS) of up to LINES_PER_SCENE random lines of a scene, one random tile per line."""
+    scene, spec = scene_for_seed(seed)
+    rng = np.random.default_rng([seed, 1])
+    kept = list(spec.kept_lines())
+    lines = rng.choice(kept, size=min(LINES_PER_SCENE, len(kept)), replace=False)
+    jitter = VELOCITY_JITTER if split == "train" else 0.0
+    inputs, targets = [], []
+    for line in sorted(int(i) for i in lines):
+        sample = line_sample(scene, spec, line, rng, jitter)
+        tiles, starts = cut_tiles(sample.image)
+        masks, _ = cut_tiles(sample.mask.astype(np.float32))
+        # Mostly the tile holding the most pipe pixels (a pipe tends to cross a line once), else any.
+        k = int(np.argmax(masks.sum(axis=(1, 2, 3)))) if rng.random() < 0.8 else int(rng.integers(len(starts)))
+        inputs.append(tiles[k])
+        targets.append(masks[k] > 0.5)
+    return np.stack(inputs).astype(np.float16), np.stack(targets).astype(np.uint8)
+
+
+def _scene_tiles_args(args: tuple[int, str]) -> tuple[NDArray[np.float16], NDArray[np.uint8]]:
+    return scene_tiles(*args)
+
+
+def cache_path(split: str) -> Path:
+    """The .npz cache of a split."""
+    return CACHE_DIR / f"migration_{split}_v{CACHE_VERSION}.npz"
+
+
+def build_split(split: Literal["train", "val", "test"], workers: int = 1, limit: int | None = None) -> Path:
+    """Generate (or reuse) the cached tiles of a split; returns the cache path."""
+    path = cache_path(split) if limit is None else CACHE_DIR / f"migration_{split}_v{CACHE_VERSION}_n{limit}.npz"
+    if path.exists():
+        return path
+    seeds = list(split_seeds(split))[:limit]
+    start = time.perf_counter()
+    jobs = [(s, split) for s in seeds]
+    if workers > 1:
+        with Pool(workers) as pool:
+            parts = pool.map(_scene_tiles_args, jobs, chunksize=8)
+    else:
+        parts = [_scene_tiles_args(j) for j in jobs]
+    x = np.concatenate([p[0] for p in parts])
+    y = np.concatenate([p[1] for p in parts])
+    seconds = time.perf_counter() - start
+    CACHE_DIR.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, x=x, y=y, seeds=np.array(seeds), seconds=seconds)
+    print(f"{split}: {len(seeds)} scenes → {len(x)} tiles {x.shape[1:]} in {seconds:.0f} s → {path}", flush=True)
+    return path
+
+
+def load_split(path: Path) -> tuple[NDArray[np.float16], NDArray[np.uint8]]:
+    """Inputs and targets of a cached split."""
+    with np.load(path) as data:
+        return data["x"], data["y"]
+
+
+def main() -> None:
+    """CLI: build the cache of one or more splits."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--split", choices=("train", "val", "test"), action="append", required=True)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--limit", type=int, default=None, help="only the first N scenes (smoke runs)")
+    args = parser.parse_args()
+    for split in args.split:
+        build_split(split, args.workers, args.limit)
+
+
+if __name__ == "__main__":
+    main()
