@@ -23,7 +23,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from gprbot.sim.scene import builtin_scene_names, load_scene
 
     cfg = load_config(args.config)
-    if args.via_daemon:
+    if not args.offline and args.scene != "all":
         return _demo_via_daemon(cfg, args)
     names = builtin_scene_names() if args.scene == "all" else [args.scene or cfg.sim.scene]
     base = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("demo-%Y%m%d-%H%M%S")
@@ -53,17 +53,16 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
     from gprbot.robot.shell_demo import survey_via_shell
     from gprbot.sim.scene import load_scene
 
-    if args.scene == "all":
-        raise GprbotError("--via-daemon surveys one scene: name it with --scene")
     if args.scene:
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, scene=args.scene))
+    scene = load_scene(cfg.sim.scene)  # a bad scene is one clear error before any daemon starts
     dest = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("pulled-%Y%m%d-%H%M%S")
     print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)")
     result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", flush=True)))
     print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}")
     # The operator's copy of pipes.json, judged against the simulated scene's truth.
     found = read_pipes_json(dest / "pipes.json")
-    matches, extras = compare_to_truth(found, load_scene(cfg.sim.scene), survey_region(cfg))
+    matches, extras = compare_to_truth(found, scene, survey_region(cfg))
     print(format_truth_table(matches, extras, found))
     ok = within_bounds(matches)
     print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if ok else 'NO'}")
@@ -136,12 +135,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    demo = sub.add_parser("demo", help="run a whole simulated survey and reconstruct the pipes")
+    demo = sub.add_parser(
+        "demo",
+        help="a whole simulated survey: by default the operator's path — start the daemon on the simulated "
+        "robot, survey through its TCP shell, pull the results, compare with the scene's truth",
+    )
     demo.add_argument("--scene", help="built-in scene name, a scene YAML file, or 'all' (default: config's)")
     demo.add_argument("--out", help="run directory to write (default: runs/demo-<time>)")
     demo.add_argument("--config", help="config YAML (default: the embedded simulation config)")
-    demo.add_argument("--via-daemon", action="store_true",
-                      help="the operator's path: start the daemon, survey through its TCP shell, pull the results")
+    demo.add_argument("--offline", action="store_true",
+                      help="process the simulated survey directly (fast, no daemon); implied by --scene all")
     demo.add_argument("--check", action="store_true", help="exit 3 unless every pipe is within the bounds")
     demo.set_defaults(func=_cmd_demo)
 

@@ -1,4 +1,4 @@
-"""`gprbot demo --via-daemon`: the operator's path over real TCP, results checked by an independent reader."""
+"""`gprbot demo`, by default the operator's path: daemon, TCP shell, pull; results checked by an independent reader."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def test_demo_via_daemon_surveys_and_pulls_over_tcp(tmp_path: Path, capsys: pyte
     config = tmp_path / "short.yaml"
     config.write_text(SHORT_SURVEY.format(runs=tmp_path / "runs"))
     dest = tmp_path / "pulled"
-    assert main(["demo", "--via-daemon", "--config", str(config), "--out", str(dest)]) == 0
+    assert main(["demo", "--config", str(config), "--out", str(dest)]) == 0  # the default: the operator's path
     out = capsys.readouterr().out
     assert "* survey done" in out
 
