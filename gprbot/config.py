@@ -95,6 +95,8 @@ class ReconstructionConfig:
     dense_points: int = 8192
     cluster_distance_m: float = 0.08
     min_slices_per_pipe: int = 2
+    gprnet_model: str = "models/gprnet.onnx"  # used when completion is gprnet
+    model_threads: int = 2
 
 
 @dataclass(frozen=True)

@@ -78,7 +78,7 @@ def _cloud_entry(builder: str) -> ModelEntry:
     return ModelEntry(
         f"training.pointcloud_models:{builder}",
         (("sparse_points", (1500, 3), "sparse cloud normalised to the unit cube (see the card's normalisation)"),),
-        (("dense_points", (8192, 3), "dense cloud in the same normalised frame"),),
+        (("dense_points", (8064, 3), "dense cloud in the same normalised frame (896 seeds × 9)"),),
         "points centred on the sparse cloud's bounding-box centre and divided by its longest side",
     )
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +21,7 @@ from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import CrossingHint
 from gprbot.infer.completion import Reconstruction, geometric_completion
+from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.migrationnet import MigrationNetInterpreter
 from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
 
@@ -91,6 +93,14 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     slices = [lr.slice for lr in lines]
     points = np.concatenate([s.points for s in slices]) if slices else np.zeros((0, 3))
     sparse = resample_cloud(points, cfg.reconstruction.sparse_points, rng) if len(points) else points
-    reconstruction = geometric_completion(slices, cfg.reconstruction, rng)
+    if cfg.reconstruction.completion == "gprnet":
+        # GPRNet gives the dense cloud; the pipes (pipes.json) still come from the fit through the slices,
+        # which needs to know which points came from which survey line.
+        completion = GprnetCompletion(Path(cfg.reconstruction.gprnet_model), cfg.reconstruction.model_threads,
+                                      expect_name="gprnet")
+        reconstruction = gprnet_reconstruction(slices, sparse, cfg.reconstruction, completion, rng)
+        timings["gprnet"] = completion.last_seconds
+    else:
+        reconstruction = geometric_completion(slices, cfg.reconstruction, rng)
     timings["reconstruct"] = time.perf_counter() - t0
     return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings)

@@ -1,0 +1,186 @@
+"""Train GPRNet, PCN or PF-Net on the cached completion dataset, on a wall-clock budget, with resume.
+
+    python -m training.train_completion --model gprnet --minutes 35
+
+Every epoch writes training/checkpoints/<model>/last.pt (model, optimizer, history, elapsed time) and,
+when the validation CD2 improves, best.pt — the checkpoint tools/export_onnx.py reads. Re-running the
+same command resumes from last.pt. The learning rate follows a cosine over the *time* budget, so a
+resumed or slower run still anneals. The loss is CD2 summed over the model's stages (coarse → dense);
+each step compares a random 2048-point subset of the truth (and of the dense output) — an unbiased
+estimate of the pred→truth term at a quarter of the cost of the full 8064 × 8192 matrix.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from training.chamfer import chamfer_l2, cloud_metrics
+from training.pointcloud_data import load_split
+from training.pointcloud_models import BUILDERS, parameter_count
+
+ROOT = Path(__file__).resolve().parent
+CHECKPOINTS = ROOT / "checkpoints"
+LOGS = ROOT / "logs"
+# Sizes shrunk from the paper for a 2-core CPU budget (see models/EVAL.md for what they cost).
+MODEL_CONFIGS: dict[str, dict[str, Any]] = {
+    "gprnet": {}, "pcn": {}, "pfnet": {}, "gprnet_anchored": {"input_seeds": 448},
+}
+MIN_LR_FRACTION = 0.05
+DENSE_OUT = 8064  # 896 seeds × 9: every model ends with the paper's count, not the registry's default 8192
+
+
+def export_overrides() -> dict[str, Any]:
+    """The checkpoint's "export" entry for tools/export_onnx.py: the dense output has 8064 points."""
+    return {"outputs": [["dense_points", [DENSE_OUT, 3], "dense cloud (896 seeds × 3×3 fold) in the same "
+                         "normalised frame as the input"]]}
+
+
+def augment(sparse: torch.Tensor, dense: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mirror x and/or y (lines stay along x, depth stays down) and add light input noise to some samples."""
+    b = sparse.shape[0]
+    signs = torch.ones(b, 1, 3)
+    signs[:, 0, :2] = torch.where(torch.rand(b, 2, generator=gen) < 0.5, -1.0, 1.0)
+    noisy = torch.rand(b, 1, 1, generator=gen) < 0.3
+    sigma = torch.rand(b, 1, 1, generator=gen) * 0.01 * noisy
+    sparse = sparse * signs + sigma * torch.randn(sparse.shape, generator=gen)
+    return sparse, dense * signs
+
+
+def random_subset(points: torch.Tensor, n: int, gen: torch.Generator) -> torch.Tensor:
+    """n random points (without replacement) of each cloud in a batch (B, M, 3); all when M ≤ n."""
+    if points.shape[1] <= n:
+        return points
+    index = torch.stack([torch.randperm(points.shape[1], generator=gen)[:n] for _ in range(points.shape[0])])
+    return torch.gather(points, 1, index.unsqueeze(-1).expand(-1, -1, 3))
+
+
+def stage_loss(stages: list[torch.Tensor], dense: torch.Tensor, n: int, gen: torch.Generator) -> torch.Tensor:
+    """Sum over stages of CD2 against a random n-point subset of the truth (the dense stage subsampled too)."""
+    truth = random_subset(dense, n, gen)
+    return sum((chamfer_l2(random_subset(s, n, gen), truth).mean() for s in stages), torch.zeros(()))
+
+
+@torch.no_grad()
+def validate(model: torch.nn.Module, sparse: NDArray[np.float32], dense: NDArray[np.float32]) -> dict[str, float]:
+    """Mean CD2, CD1, F-score@1% of the full dense output against the full truth over a split."""
+    model.eval()
+    metrics = []
+    for start in range(0, len(sparse), 16):
+        out = model(torch.from_numpy(sparse[start : start + 16])).numpy()
+        metrics += [cloud_metrics(p, t) for p, t in zip(out, dense[start : start + 16], strict=True)]
+    model.train()
+    return {
+        "cd2": float(np.mean([m.cd2 for m in metrics])),
+        "cd1": float(np.mean([m.cd1 for m in metrics])),
+        "fscore": float(np.mean([m.fscore for m in metrics])),
+    }
+
+
+def learning_rate(base: float, elapsed_s: float, budget_s: float) -> float:
+    """Cosine decay from base to MIN_LR_FRACTION·base over the time budget."""
+    f = min(elapsed_s / budget_s, 1.0)
+    return base * (MIN_LR_FRACTION + (1.0 - MIN_LR_FRACTION) * 0.5 * (1.0 + math.cos(math.pi * f)))
+
+
+def train(args: argparse.Namespace) -> dict[str, Any]:
+    """Run (or resume) one training; returns the final history."""
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    gen = torch.Generator().manual_seed(args.seed)
+    run_name = args.name or args.model
+    out_dir = CHECKPOINTS / run_name
+    out_dir.mkdir(parents=True, exist_ok=True)
+    LOGS.mkdir(parents=True, exist_ok=True)
+    log_path = LOGS / f"{run_name}.log"
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+        with log_path.open("a") as log:
+            log.write(text + "\n")
+
+    train_data, val_data = load_split("train"), load_split("val")
+    sparse = torch.from_numpy(train_data["sparse"][: args.train_limit])
+    dense = torch.from_numpy(train_data["dense"][: args.train_limit])
+    val_sparse, val_dense = val_data["sparse"][: args.val_limit], val_data["dense"][: args.val_limit]
+    config = dict(MODEL_CONFIGS[run_name])
+    model = BUILDERS[args.model](**config)
+    optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
+    history: list[dict[str, float]] = []
+    epoch, elapsed, best = 0, 0.0, math.inf
+    last = out_dir / "last.pt"
+    if last.exists() and not args.fresh:
+        state = torch.load(last, weights_only=False)
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
+        best = min((h["val_cd2"] for h in history), default=math.inf)
+        gen.manual_seed(args.seed + epoch)
+        say(f"resumed {args.model} at epoch {epoch}, {elapsed / 60:.1f} min done")
+    else:
+        say(f"{args.model}: {parameter_count(model)} parameters, {len(sparse)} train / {len(val_sparse)} val samples")
+    budget = args.minutes * 60.0
+    while epoch < args.epochs and elapsed < budget:
+        start, losses = time.perf_counter(), []
+        order = torch.randperm(len(sparse), generator=gen)
+        for i in range(0, len(order) - args.batch_size + 1, args.batch_size):
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate(args.lr, elapsed + time.perf_counter() - start, budget)
+            x, y = augment(sparse[order[i : i + args.batch_size]], dense[order[i : i + args.batch_size]], gen)
+            loss = stage_loss(model.forward_stages(x), y, args.loss_points, gen)  # type: ignore[operator]
+            optimizer.zero_grad()
+            loss.backward()  # type: ignore[no-untyped-call]
+            optimizer.step()
+            losses.append(float(loss.detach()))
+            if elapsed + time.perf_counter() - start > budget:
+                break
+        elapsed += time.perf_counter() - start
+        epoch += 1
+        val = validate(model, val_sparse, val_dense)
+        history.append({"epoch": epoch, "elapsed_s": elapsed, "train_loss": float(np.mean(losses)),
+                        "val_cd2": val["cd2"], "val_cd1": val["cd1"], "val_fscore": val["fscore"]})
+        state = {"model": model.state_dict(), "model_config": config, "epoch": epoch, "seed": args.seed,
+                 "metrics": {f"val_{k}": v for k, v in val.items()}, "optimizer": optimizer.state_dict(),
+                 "elapsed_s": elapsed, "history": history, "export": export_overrides(),
+                 "data": {"train": len(sparse), "val": len(val_sparse), "generator": "training.pointcloud_data"}}
+        torch.save(state, out_dir / "last.partial.pt")
+        (out_dir / "last.partial.pt").replace(last)
+        if val["cd2"] < best:
+            best = val["cd2"]
+            torch.save({k: v for k, v in state.items() if k != "optimizer"}, out_dir / "best.pt")
+        say(f"epoch {epoch} {elapsed / 60:.1f} min loss {np.mean(losses) * 1e3:.3f}e-3 "
+            f"val CD2 {val['cd2'] * 1e3:.3f}e-3 CD1 {val['cd1'] * 1e2:.3f}e-2 "
+            f"F {val['fscore']:.3f} lr {optimizer.param_groups[0]['lr']:.2e}")
+    (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+    say(f"done {args.model}: {epoch} epochs, {elapsed / 60:.1f} min, best val CD2 {best * 1e3:.3f}e-3")
+    return {"history": history, "best_val_cd2": best}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Command-line options."""
+    parser = argparse.ArgumentParser(description="train a point-cloud completion model")
+    parser.add_argument("--model", choices=sorted(BUILDERS), required=True)
+    parser.add_argument("--name", default=None, help="a MODEL_CONFIGS variant (e.g. gprnet_anchored)")
+    parser.add_argument("--minutes", type=float, default=35.0, help="wall-clock training budget")
+    parser.add_argument("--epochs", type=int, default=1000)
+    parser.add_argument("--batch-size", type=int, default=8)
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--loss-points", type=int, default=2048)
+    parser.add_argument("--train-limit", type=int, default=None)
+    parser.add_argument("--val-limit", type=int, default=100)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--fresh", action="store_true", help="ignore an existing last.pt")
+    return parser.parse_args(argv)
+
+
+if __name__ == "__main__":
+    train(parse_args())
