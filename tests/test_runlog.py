@@ -87,7 +87,7 @@ def test_header_carries_versions_and_config_without_secrets(tmp_path: Path) -> N
     cfg = load_config()
     header = make_run_header(cfg, 1_700_000_000.5, {"realsense": "f1234", "gpr": "sim"})
     header["config"]["gpr_device"]["api_token"] = "TOKEN-XYZ"
-    header["config"]["shell"] = {"Password": "hunter2", "users": [{"name": "op", "secret": "S3CR3T-VALUE"}]}
+    header["config"]["operators"] = {"Password": "hunter2", "users": [{"name": "op", "secret": "S3CR3T-VALUE"}]}
     RunLogWriter(tmp_path, header).close({})
     raw = segment_path(tmp_path, 0).read_bytes()
     for secret in (b"TOKEN-XYZ", b"hunter2", b"S3CR3T-VALUE", b"api_token", b"Password"):
@@ -97,9 +97,11 @@ def test_header_carries_versions_and_config_without_secrets(tmp_path: Path) -> N
     assert got["created"] == 1_700_000_000.5 and got["devices"] == {"realsense": "f1234", "gpr": "sim"}
     assert isinstance(got["git_commit"], str) and got["git_commit"]
     assert got["gprbot_version"] == "0.1.0"
-    assert got["config"]["shell"] == {"users": [{"name": "op"}]}
-    del got["config"]["shell"]
-    assert got["config"] == to_dict(cfg)
+    assert got["config"]["operators"] == {"users": [{"name": "op"}]}
+    del got["config"]["operators"]
+    expected = to_dict(cfg)
+    del expected["shell"]["token_file"]  # named like a secret: dropped, even though it is only a path
+    assert got["config"] == expected
 
 
 def test_segments_roll_over_and_read_back_in_order(tmp_path: Path) -> None:
