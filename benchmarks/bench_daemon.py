@@ -13,29 +13,16 @@ from __future__ import annotations
 import argparse
 import asyncio
 import dataclasses
-import os
-import platform
 import statistics
 import tempfile
 import time
 
 import numpy as np
 
+from benchmarks.machine import machine_description
 from gprbot.config import load_config
 from gprbot.daemon import serve
 from gprbot.robot.runtime import RobotRuntime
-
-
-def machine_description() -> str:
-    """Platform, CPU model and load, for reading the figures."""
-    model = platform.machine()
-    try:
-        with open("/proc/cpuinfo") as info:
-            model = next(line.split(":", 1)[1].strip() for line in info if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return (f"{platform.platform()} | {model}, {os.cpu_count()} logical CPUs, load {os.getloadavg()[0]:.1f} | "
-            f"Python {platform.python_version()}, numpy {np.__version__}")
 
 
 async def ticker(lags: dict[str, list[float]], phase: list[str], stop: asyncio.Event, period_s: float = 0.01) -> None:

@@ -9,8 +9,6 @@ Run: `.venv/bin/python -m benchmarks.bench_replay`.
 
 from __future__ import annotations
 
-import os
-import platform
 import statistics
 import tempfile
 import time
@@ -19,37 +17,13 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.machine import machine_description
 from gprbot.config import load_config
 from gprbot.messages import ImuSample
-from gprbot.replay import POSE_LATENCY_S, load_run, record_simulated_survey, replay_run
-from gprbot.runlog import RunLogWriter, SurveyEvent
+from gprbot.replay import load_run, record_simulated_survey, replay_run, survey_messages
+from gprbot.runlog import RunLogWriter
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene
-from gprbot.survey import line_windows
-
-
-def machine_description() -> str:
-    """Platform, CPU model and load, for reading the figures."""
-    model = platform.machine()
-    try:
-        with open("/proc/cpuinfo") as info:
-            model = next(line.split(":", 1)[1].strip() for line in info if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    load = os.getloadavg()[0]
-    return (f"{platform.platform()} | {model}, {os.cpu_count()} logical CPUs, load {load:.1f} | "
-            f"Python {platform.python_version()}, numpy {np.__version__}")
-
-
-def timed_messages(sim: Any) -> list[tuple[float, Any]]:
-    """The survey's messages in arrival order, as record_simulated_survey writes them."""
-    timed: list[tuple[float, int, Any]] = [(tr.t, 1, tr) for tr in sim.traces]
-    timed += [(p.t + POSE_LATENCY_S, 0, p) for p in sim.trajectory.estimated_poses]
-    for w in line_windows(sim.plan):
-        timed += [(w.t_start, 2, SurveyEvent(w.t_start, "line_start", w.line)),
-                  (w.t_end, 2, SurveyEvent(w.t_end, "line_end", w.line))]
-    timed.sort(key=lambda item: (item[0], item[1]))
-    return [(t, m) for t, _, m in timed]
 
 
 def write_rate(messages: list[tuple[float, Any]], root: Path, repeats: int = 3) -> tuple[float, float]:
@@ -73,7 +47,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         sim = record_simulated_survey(cfg, load_scene("paper_slab"), root / "run")
-        messages = timed_messages(sim)
+        messages = survey_messages(sim)
         log_bytes = sum(p.stat().st_size for p in (root / "run").glob("log-*.msgpack"))
         print(f"survey: {cfg.survey.lines} lines, {sim.plan.duration_s:.0f} s, {len(sim.traces)} traces, "
               f"{len(messages)} records, log {log_bytes / 1e6:.1f} MB")

@@ -170,21 +170,27 @@ def replay_run(run_dir: Path, out_dir: Path, cfg: Config | None = None) -> Surve
     return result
 
 
-def record_simulated_survey(cfg: Config, scene: Scene, run_dir: Path, created_wall_s: float = 0.0,
-                            segment_bytes: int = 64 * 1024 * 1024) -> SimulatedSurvey:
-    """Simulate a survey and record it as the daemon would: traces, estimated poses, line events."""
-    from gprbot.sim.survey_sim import simulate_survey
-
-    sim = simulate_survey(cfg, scene)
+def survey_messages(sim: Any) -> list[tuple[float, Any]]:
+    """A simulated survey's messages in arrival order (receive time, message): traces, poses, line events."""
     timed: list[tuple[float, int, Any]] = [(tr.t, 1, tr) for tr in sim.traces]
     timed += [(p.t + POSE_LATENCY_S, 0, p) for p in sim.trajectory.estimated_poses]
     for w in line_windows(sim.plan):
         timed += [(w.t_start, 2, SurveyEvent(w.t_start, "line_start", w.line)),
                   (w.t_end, 2, SurveyEvent(w.t_end, "line_end", w.line))]
     timed.sort(key=lambda item: (item[0], item[1]))
+    return [(t, m) for t, _, m in timed]
+
+
+def record_simulated_survey(cfg: Config, scene: Scene, run_dir: Path, created_wall_s: float = 0.0,
+                            segment_bytes: int = 64 * 1024 * 1024) -> SimulatedSurvey:
+    """Simulate a survey and record it as the daemon would: traces, estimated poses, line events."""
+    from gprbot.sim.survey_sim import simulate_survey
+
+    sim = simulate_survey(cfg, scene)
+    timed = survey_messages(sim)
     header = make_run_header(cfg, created_wall_s, {"gpr": "sim", "realsense": "sim", "motors": "sim"}, scene=scene.name)
     writer = RunLogWriter(run_dir, header, segment_bytes=segment_bytes)
-    for t_received, _, message in timed:
+    for t_received, message in timed:
         writer.append(message, t_received)
     writer.close({"traces": len(sim.traces), "lines": len(sim.plan.lines())})
     return sim
