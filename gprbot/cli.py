@@ -74,7 +74,7 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
 def _cmd_info(args: argparse.Namespace) -> int:
     from gprbot.gpr.dzt import format_info, header_info, read_dzt
 
-    dzt = read_dzt(args.file)
+    dzt = read_dzt(args.file, allow_partial=args.allow_partial)
     if args.json:
         print(json.dumps(header_info(dzt.header), indent=2, default=str))
     else:
@@ -86,7 +86,9 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
     from gprbot.interpret_file import interpret_dzt
 
     out = Path(args.out) if args.out else None
-    report = interpret_dzt(Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing)
+    report = interpret_dzt(
+        Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing, args.allow_partial
+    )
     print(report)
     return 0
 
@@ -151,12 +153,14 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="print the header of a GSSI DZT file")
     info.add_argument("file")
     info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    info.add_argument("--allow-partial", action="store_true", help="drop a trailing partial scan (a cut file)")
     info.set_defaults(func=_cmd_info)
 
     interp = sub.add_parser("interpret", help="interpret one B-scan (a DZT file) into pipe detections")
     interp.add_argument("file")
     interp.add_argument("--velocity", type=float, help="wave velocity in m/ns (default: estimated)")
     interp.add_argument("--channel", type=int, default=0, help="channel of a multi-channel file")
+    interp.add_argument("--allow-partial", action="store_true", help="drop a trailing partial scan (a cut file)")
     interp.add_argument("--frequency", type=float, help="antenna centre frequency in MHz (default: from header)")
     interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")

@@ -61,9 +61,11 @@ def gpr_config_for(header: DztHeader, base: GprConfig, frequency_mhz: float | No
     )
 
 
-def dzt_bscan(path: Path, channel: int, spacing_m: float | None) -> tuple[BScan, DztHeader]:
+def dzt_bscan(
+    path: Path, channel: int, spacing_m: float | None, allow_partial: bool = False
+) -> tuple[BScan, DztHeader]:
     """The traces of one channel of a DZT file as a B-scan along x."""
-    dzt = read_dzt(path)
+    dzt = read_dzt(path, allow_partial=allow_partial)
     data = dzt.as_float(channel)
     if data.shape[0] == 0:
         raise DataFormatError(f"{path}: the file holds no traces")
@@ -86,11 +88,12 @@ def interpret_dzt(
     channel: int = 0,
     frequency_mhz: float | None = None,
     spacing_m: float | None = None,
+    allow_partial: bool = False,
 ) -> str:
     """Interpret a DZT file, write detections.json and PNGs, and return a printable report."""
     cfg = load_config()
     notes: list[str] = []
-    bscan, header = dzt_bscan(path, channel, spacing_m)
+    bscan, header = dzt_bscan(path, channel, spacing_m, allow_partial)
     gpr = gpr_config_for(header, cfg.gpr, frequency_mhz)
     interp: InterpretationConfig = cfg.interpretation
     out = out_dir or Path(cfg.runs_dir) / time.strftime(f"interpret-{path.stem}-%Y%m%d-%H%M%S")

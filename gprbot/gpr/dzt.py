@@ -94,7 +94,8 @@ def parse_dzt(raw: bytes, *, source: str = "<bytes>", allow_partial: bool = Fals
         raise DataFormatError(
             f"{source}: truncated DZT file: the data end in a partial scan ({leftover} bytes extra "
             f"after {header.traces} whole scans, {trace_bytes - leftover} bytes missing to complete "
-            f"one of {trace_bytes}); pass allow_partial=True to drop the partial scan"
+            f"one of {trace_bytes}); copy the file again, or read it with --allow-partial (allow_partial=True) "
+            "to drop the partial scan"
         )
     stored = _STORED_DTYPES[header.bits]
     data = np.frombuffer(
