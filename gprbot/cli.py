@@ -1,4 +1,4 @@
-"""The `gprbot` command: demo, interpret, info (and, as they land, run, replay, shell, pull, eval)."""
+"""The `gprbot` command: demo, run, shell, pull, replay, interpret, info."""
 
 from __future__ import annotations
 
