@@ -6,6 +6,7 @@ so that a simulated run and a run on the robot go through the same code.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -56,16 +57,24 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float,
     return float(estimate.v), True, estimate.crossings
 
 
+@functools.lru_cache(maxsize=2)
+def migrationnet_interpreter(threads: int) -> MigrationNetInterpreter:
+    """MigrationNet's session, loaded and warmed up once per process (the worker keeps it between lines)."""
+    return MigrationNetInterpreter(threads=threads)
+
+
+@functools.lru_cache(maxsize=2)
+def gprnet_completion(model_path: str, threads: int) -> GprnetCompletion:
+    """GPRNet's session, loaded and warmed up once per process."""
+    return GprnetCompletion(Path(model_path), threads, expect_name="gprnet")
+
+
 def interpret_line(
-    line: int,
-    processed: BScan,
-    cfg: Config,
-    velocity: float,
-    hints: Sequence[CrossingHint] = (),
-    interpreter: MigrationNetInterpreter | None = None,
+    line: int, processed: BScan, cfg: Config, velocity: float, hints: Sequence[CrossingHint] = ()
 ) -> LineResult:
-    """Interpret one preprocessed line (MigrationNet when given, else classical) and register it in 3D."""
-    if interpreter is not None:
+    """Interpret one preprocessed line (MigrationNet or classical, as configured) and register it in 3D."""
+    if cfg.interpretation.method == "migrationnet":
+        interpreter = migrationnet_interpreter(cfg.reconstruction.model_threads)
         section = interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
     else:
         section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
@@ -85,8 +94,7 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     timings["velocity"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    interpreter = MigrationNetInterpreter(threads=2) if cfg.interpretation.method == "migrationnet" else None
-    lines = tuple(interpret_line(line, b, cfg, velocity, hints, interpreter) for line, b in processed.items())
+    lines = tuple(interpret_line(line, b, cfg, velocity, hints) for line, b in processed.items())
     timings["interpret"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -96,8 +104,7 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     if cfg.reconstruction.completion == "gprnet":
         # GPRNet gives the dense cloud; the pipes (pipes.json) still come from the fit through the slices,
         # which needs to know which points came from which survey line.
-        completion = GprnetCompletion(Path(cfg.reconstruction.gprnet_model), cfg.reconstruction.model_threads,
-                                      expect_name="gprnet")
+        completion = gprnet_completion(cfg.reconstruction.gprnet_model, cfg.reconstruction.model_threads)
         reconstruction = gprnet_reconstruction(slices, sparse, cfg.reconstruction, completion, rng)
         timings["gprnet"] = completion.last_seconds
     else:
