@@ -79,6 +79,7 @@ class InterpretationConfig:
     """How each B-scan becomes a cross-section and detections."""
 
     method: Literal["classical", "migrationnet"] = "classical"
+    migrationnet_model: str = "models/migrationnet.onnx"  # used when method is migrationnet; see model_path()
     migration: Literal["kirchhoff", "stolt"] = "kirchhoff"
     aperture_deg: float = 35.0
     mask_threshold: float = 0.5
@@ -95,7 +96,7 @@ class ReconstructionConfig:
     dense_points: int = 8192
     cluster_distance_m: float = 0.08
     min_slices_per_pipe: int = 2
-    gprnet_model: str = "models/gprnet.onnx"  # used when completion is gprnet
+    gprnet_model: str = "models/gprnet.onnx"  # used when completion is gprnet; see model_path()
     model_threads: int = 2
 
 
@@ -254,6 +255,15 @@ class Config:
     gpr_device: GprDeviceConfig = field(default_factory=GprDeviceConfig)
     realsense: RealsenseConfig = field(default_factory=RealsenseConfig)
     runs_dir: str = "runs"
+
+
+CHECKOUT_ROOT = Path(__file__).resolve().parents[1]
+
+
+def model_path(configured: str) -> Path:
+    """A configured model file: absolute as given, relative to the gprbot checkout (not the working directory)."""
+    path = Path(configured).expanduser()
+    return path if path.is_absolute() else CHECKOUT_ROOT / path
 
 
 def _type_name(tp: Any) -> str:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
-from gprbot.config import Config, load_config, parse_config
+from gprbot.config import Config, load_config, model_path, parse_config
 from gprbot.errors import ConfigError
 
 
@@ -59,3 +61,13 @@ def test_robot_config_loads_and_points_at_real_devices() -> None:
     assert cfg.gpr.samples == cfg.gpr_device.points_per_trace
     assert cfg.gpr.time_window_ns == pytest.approx(cfg.gpr.samples * cfg.gpr_device.time_sampling_interval_ps / 1000)
     assert cfg.survey.trace_rate_hz == pytest.approx(1 / cfg.gpr_device.trigger_period_s)
+
+
+def test_relative_model_paths_are_read_from_the_checkout_not_the_working_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # systemd starts the daemon in / ; a shell may be anywhere
+    cfg = load_config()
+    assert model_path(cfg.reconstruction.gprnet_model).is_file()
+    assert model_path(cfg.interpretation.migrationnet_model).is_file()
+    assert model_path("/opt/x.onnx") == Path("/opt/x.onnx")

@@ -106,7 +106,8 @@ def test_a_few_training_steps_reduce_the_loss_and_resume(tmp_path: Path, monkeyp
     dense = np.concatenate([0.05 * rng.standard_normal((16, 8192, 1)), t, 0.05 * rng.standard_normal((16, 8192, 1))],
                            axis=2).astype(np.float32)
     sparse = dense[:, :1500].copy()
-    arrays = {"sparse": sparse, "dense": dense}
+    dense[5] *= 40.0  # a truth far outside its sparse cloud's cube: left out, or its loss swamps the rest
+    arrays = {"sparse": sparse, "dense": dense, "seed": np.arange(100, 116)}
     monkeypatch.setattr(train_completion, "load_split", lambda split: arrays)
     monkeypatch.setattr(train_completion, "CHECKPOINTS", tmp_path / "ckpt")
     monkeypatch.setattr(train_completion, "LOGS", tmp_path / "logs")
@@ -120,3 +121,4 @@ def test_a_few_training_steps_reduce_the_loss_and_resume(tmp_path: Path, monkeyp
     assert [h["epoch"] for h in resumed["history"]] == [1, 2, 3, 4]
     best = torch.load(tmp_path / "ckpt" / "gprnet" / "best.pt", weights_only=False)
     assert best["model_config"] == TINY and "optimizer" not in best
+    assert best["data"]["left_out_seeds"] == [105] and best["data"]["train"] == 15

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from gprbot.config import GprConfig, InterpretationConfig
+from gprbot.config import GprConfig, InterpretationConfig, model_path
 from gprbot.errors import ModelError
 from gprbot.gpr.bscan import BScan, CrossSection, Detection, check_bscan
 from gprbot.gpr.interpret import resolve_velocity
@@ -42,7 +42,7 @@ OUTPUT_NAME = "pipe_probability"
 
 def default_model_path() -> Path:
     """models/migrationnet.onnx of this checkout (the model shipped with the code)."""
-    return Path(__file__).resolve().parents[2] / "models" / "migrationnet.onnx"
+    return model_path(InterpretationConfig().migrationnet_model)
 
 
 def depth_grid() -> FloatArray:

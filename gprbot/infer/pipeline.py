@@ -10,12 +10,11 @@ import functools
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.config import Config
+from gprbot.config import Config, model_path
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.interpret import CrossSection, estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
@@ -58,15 +57,15 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float,
 
 
 @functools.lru_cache(maxsize=2)
-def migrationnet_interpreter(threads: int) -> MigrationNetInterpreter:
+def migrationnet_interpreter(configured_path: str, threads: int) -> MigrationNetInterpreter:
     """MigrationNet's session, loaded and warmed up once per process (the worker keeps it between lines)."""
-    return MigrationNetInterpreter(threads=threads)
+    return MigrationNetInterpreter(model_path(configured_path), threads=threads)
 
 
 @functools.lru_cache(maxsize=2)
-def gprnet_completion(model_path: str, threads: int) -> GprnetCompletion:
+def gprnet_completion(configured_path: str, threads: int) -> GprnetCompletion:
     """GPRNet's session, loaded and warmed up once per process."""
-    return GprnetCompletion(Path(model_path), threads, expect_name="gprnet")
+    return GprnetCompletion(model_path(configured_path), threads, expect_name="gprnet")
 
 
 def interpret_line(
@@ -74,7 +73,7 @@ def interpret_line(
 ) -> LineResult:
     """Interpret one preprocessed line (MigrationNet or classical, as configured) and register it in 3D."""
     if cfg.interpretation.method == "migrationnet":
-        interpreter = migrationnet_interpreter(cfg.reconstruction.model_threads)
+        interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads)
         section = interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
     else:
         section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
