@@ -91,6 +91,21 @@ REGISTRY = {
 }
 
 
+def completion_recipe(model_name: str, checkpoint: Path, state: dict[str, Any], out: Path) -> dict[str, Any]:
+    """The card's "reproduce" commands of a completion model, from its checkpoint (run name, seed, minutes)."""
+    run = checkpoint.parent.name
+    history = state.get("history", [])
+    minutes = round(history[-1]["elapsed_s"] / 60.0) if history else 35
+    name = f" --name {run}" if run != model_name else ""
+    return {"reproduce": [
+        "python -m training.pointcloud_data train val test",
+        f"python -m training.train_completion --model {model_name}{name} --minutes {minutes} "
+        f"--seed {state.get('seed', 0)}",
+        f"python tools/export_onnx.py {model_name} --checkpoint {checkpoint} --out {out}",
+        "python -m training.evaluate --out models/",
+    ], "evaluation": "models/EVAL.md"}
+
+
 def _with_overrides(entry: ModelEntry, overrides: dict[str, Any]) -> ModelEntry:
     """Apply a checkpoint's "export" dict (inputs/outputs as [name, shape, units] lists, normalisation)."""
     changes: dict[str, Any] = {}
@@ -114,6 +129,8 @@ def export(model_name: str, checkpoint: Path, out: Path, batch: int = 2) -> dict
 
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
     entry = _with_overrides(REGISTRY[model_name](), state.get("export", {}))
+    if "reproduce" not in entry.extra and model_name != "migrationnet":
+        entry = replace(entry, extra=entry.extra | completion_recipe(model_name, checkpoint, state, out))
     module_name, function = entry.builder.split(":")
     model = getattr(importlib.import_module(module_name), function)(**state.get("model_config", {}))
     model.load_state_dict(state["model"])
