@@ -50,6 +50,16 @@ def test_pointnet_encoders_ignore_the_order_of_the_input_points(builder: object)
         assert torch.allclose(model(x), model(x[:, torch.randperm(1500)]), atol=1e-5)
 
 
+def test_full_width_fuse_is_one_pointnet_layer_straight_to_the_global_vector() -> None:
+    torch.manual_seed(3)
+    model = build_gprnet(fuse_hidden=0, global_dim=32, decoder_hidden=16, fold_hidden=8).eval()
+    assert isinstance(model.to_global, torch.nn.Identity) and model.fuse.point.out_features == 32
+    x = torch.rand(1, 1500, 3)
+    with torch.no_grad():
+        assert model.encode(x).shape == (1, 32)
+        assert torch.allclose(model(x), model(x[:, torch.randperm(1500)]), atol=1e-5)
+
+
 def test_folding_grid_spans_the_requested_square() -> None:
     grid = folding_grid(3, 0.02)
     assert grid.shape == (9, 2)

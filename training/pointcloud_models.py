@@ -87,8 +87,10 @@ class GPRNet(nn.Module):
         dims = (3, *widths)
         self.input_seeds = input_seeds
         self.levels = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(dims))
-        self.fuse = GlobalShareLayer(sum(widths), sum(widths), fuse_hidden)
-        self.to_global = nn.Linear(fuse_hidden, global_dim)
+        # fuse_hidden 0: the paper's single fused PointNet layer [features; pooled] → global_dim; > 0: through
+        # a narrower hidden layer first (the CPU-sized variant; EVAL.md says what it costs)
+        self.fuse = GlobalShareLayer(sum(widths), sum(widths), fuse_hidden or global_dim)
+        self.to_global: nn.Module = nn.Linear(fuse_hidden, global_dim) if fuse_hidden else nn.Identity()
         self.decoder = nn.Sequential(nn.Linear(global_dim, decoder_hidden), nn.ReLU())
         self.branches = nn.ModuleList(nn.Linear(decoder_hidden, 3 * n) for n in branch_points)
         self.reshape = nn.Sequential(
@@ -111,7 +113,8 @@ class GPRNet(nn.Module):
             features.append(h)
             pooled.append(h.amax(dim=1))
         fused = torch.relu(self.fuse(torch.cat(features, 2), torch.cat(pooled, 1)))
-        return self.to_global(fused).amax(dim=1)
+        out: torch.Tensor = self.to_global(fused).amax(dim=1)
+        return out
 
     def forward_stages(self, x: torch.Tensor) -> list[torch.Tensor]:
         """[seeds (B, 896, 3), dense (B, 8064, 3)]."""

@@ -33,6 +33,7 @@ LOGS = ROOT / "logs"
 # Sizes shrunk from the paper for a 2-core CPU budget (see models/EVAL.md for what they cost).
 MODEL_CONFIGS: dict[str, dict[str, Any]] = {
     "gprnet": {}, "pcn": {}, "pfnet": {}, "gprnet_anchored": {"input_seeds": 448},
+    "gprnet_fullfuse": {"fuse_hidden": 0},  # the paper's fused layer at full width (no 64-wide bottleneck)
 }
 MIN_LR_FRACTION = 0.05
 # A sample whose truth reaches this far outside the unit cube had a sparse cloud far smaller than its pipes
