@@ -90,3 +90,18 @@ def test_anchored_gprnet_starts_as_a_copy_of_its_input_seeds() -> None:
     anchors = x[:, ::3][:, :448]  # every 3rd input point: the stride 1500 // 448
     assert torch.equal(seeds[:, 448:], anchors)
     assert torch.equal(dense.reshape(1, 896, 9, 3)[:, 448:], anchors[:, :, None, :].expand(-1, -1, 9, -1))
+
+
+def test_pyramid_branches_read_their_point_sets_off_successive_decoder_layers() -> None:
+    torch.manual_seed(4)
+    model = build_gprnet(fuse_hidden=0, global_dim=32, branch_widths=(24, 16, 8), fold_hidden=8).eval()
+    assert [layer.out_features for layer in model.decoder] == [24, 16, 8]
+    assert [(b.in_features, b.out_features) for b in model.branches] == [(24, 768), (16, 384), (8, 192)]
+    x = torch.rand(2, 1500, 3)
+    with torch.no_grad():
+        seeds, dense = model.forward_stages(x)
+        model.branches[2].bias.add_(1.0)  # only the last branch's 64 points move
+        moved, _ = model.forward_stages(x)
+    assert seeds.shape == (2, 896, 3) and dense.shape == (2, 8064, 3)
+    changed = (moved != seeds).any(dim=2)[0]
+    assert bool(changed[384:448].all()) and not bool(changed[:384].any()) and not bool(changed[448:].any())

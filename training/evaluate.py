@@ -35,7 +35,8 @@ from training.pointcloud_data import CACHE_DIR, DENSE_POINTS, load_split, survey
 from training.pointcloud_models import BUILDERS
 from training.random_scenes import CASES, scene_for_seed, split_seeds
 
-LEARNED = ("gprnet", "gprnet_anchored", "pcn", "pfnet")  # models/<name>.onnx, those present
+# models/<name>.onnx, those present: the shipped GPRNet, its ablation variants, the two baselines
+LEARNED = ("gprnet", "gprnet_fullfuse", "gprnet_pyramid", "gprnet_bottleneck", "gprnet_anchored", "pcn", "pfnet")
 NOISE_LEVELS = (0.0, 0.01, 0.05, 0.1, 0.2)
 LATENCY_RUNS = 20
 THREADS = 2
@@ -232,7 +233,9 @@ def evaluate(
     return report
 
 
-NAMES = {"gprnet": "GPRNet", "gprnet_anchored": "GPRNet (input-anchored variant)", "pcn": "PCN", "pfnet": "PF-Net",
+NAMES = {"gprnet": "GPRNet (shipped)", "gprnet_fullfuse": "GPRNet, one-layer branches",
+         "gprnet_pyramid": "GPRNet, FC-chain branches", "gprnet_bottleneck": "GPRNet, 64-wide fuse bottleneck",
+         "gprnet_anchored": "GPRNet (input-anchored variant)", "pcn": "PCN", "pfnet": "PF-Net",
          "geometric": "geometric fit", "truth_floor": "truth resample (floor)",
          "sparse_copy": "sparse input as the answer"}
 
@@ -252,6 +255,19 @@ def training_summary(onnx_path: Path) -> dict[str, Any]:
         "best_val_cd2_e3": 1e3 * state.get("metrics", {}).get("val_cd2", float("nan")),
         "val_cd2_e3_curve": [round(1e3 * h["val_cd2"], 3) for h in history],
     }
+
+
+def describe_variant(name: str, config: dict[str, Any]) -> str:
+    """A model config in words for the training table (GPRNet's options; the baselines' sizes are below it)."""
+    if not name.startswith("gprnet"):
+        return "as published (sizes below)"
+    fuse = config.get("fuse_hidden", 64)
+    parts = ["fused layer 896 wide (paper)" if fuse == 0 else f"fused layer via a {fuse}-wide bottleneck"]
+    widths = config.get("branch_widths") or ()
+    parts.append(f"branches off FC {'/'.join(str(w) for w in widths)}" if widths else "branches off one FC 512")
+    if config.get("input_seeds"):
+        parts.append(f"input-anchored ({config['input_seeds']} seeds)")
+    return ", ".join(parts)
 
 
 def _row(cells: list[str]) -> str:
@@ -286,8 +302,7 @@ def markdown(report: dict[str, Any]) -> str:
                                                "best val CD2×10³", "ONNX MB"]), _row(["---"] * 8)]
         for name, t in report["training"].items():
             cells = [str(t.get(k, "-")) for k in ("parameters", "epochs", "minutes", "best_epoch")]
-            seeds = t.get("model_config", {}).get("input_seeds", 0)
-            variant = f"input-anchored ({seeds} seeds)" if seeds else "as published"
+            variant = describe_variant(name, t.get("model_config", {}))
             lines.append(_row([NAMES.get(name, name), variant, *cells, f"{t.get('best_val_cd2_e3', float('nan')):.3f}",
                                str(t["onnx_mb"])]))
     lines += [*targets(report), "", REDUCTIONS]

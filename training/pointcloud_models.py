@@ -82,6 +82,7 @@ class GPRNet(nn.Module):
         grid_side: int = 3,
         grid_half_width: float = DEFAULT_GRID_HALF_WIDTH,
         input_seeds: int = 0,
+        branch_widths: tuple[int, ...] = (),
     ) -> None:
         super().__init__()
         dims = (3, *widths)
@@ -91,8 +92,12 @@ class GPRNet(nn.Module):
         # a narrower hidden layer first (the CPU-sized variant; EVAL.md says what it costs)
         self.fuse = GlobalShareLayer(sum(widths), sum(widths), fuse_hidden or global_dim)
         self.to_global: nn.Module = nn.Linear(fuse_hidden, global_dim) if fuse_hidden else nn.Identity()
-        self.decoder = nn.Sequential(nn.Linear(global_dim, decoder_hidden), nn.ReLU())
-        self.branches = nn.ModuleList(nn.Linear(decoder_hidden, 3 * n) for n in branch_points)
+        # branch_widths empty: every branch is one linear layer off a shared decoder_hidden layer; else a chain
+        # of FC layers (e.g. 1024/512/256, as in PF-Net's pyramid decoder) with branch i read off layer i
+        chain = branch_widths or (decoder_hidden,)
+        self.decoder = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise((global_dim, *chain)))
+        taps = branch_widths or (decoder_hidden,) * len(branch_points)
+        self.branches = nn.ModuleList(nn.Linear(w, 3 * n) for w, n in zip(taps, branch_points, strict=True))
         self.reshape = nn.Sequential(
             nn.Linear(global_dim, decoder_hidden), nn.ReLU(), nn.Linear(decoder_hidden, 3 * reshape_points)
         )
@@ -119,8 +124,12 @@ class GPRNet(nn.Module):
     def forward_stages(self, x: torch.Tensor) -> list[torch.Tensor]:
         """[seeds (B, 896, 3), dense (B, 8064, 3)]."""
         g = self.encode(x)
-        d = self.decoder(g)
-        parts = [branch(d).reshape(x.shape[0], -1, 3) for branch in self.branches]
+        levels, h = [], g
+        for layer in self.decoder:
+            h = torch.relu(layer(h))
+            levels.append(h)
+        taps = levels if len(levels) == len(self.branches) else levels[-1:] * len(self.branches)
+        parts = [branch(t).reshape(x.shape[0], -1, 3) for branch, t in zip(self.branches, taps, strict=True)]
         if self.input_seeds:
             anchors = x[:, :: max(x.shape[1] // self.input_seeds, 1)][:, : self.input_seeds]
             parts.append(anchors + self.anchor_out(torch.relu(self.anchor_first(anchors, g))))

@@ -34,6 +34,8 @@ LOGS = ROOT / "logs"
 MODEL_CONFIGS: dict[str, dict[str, Any]] = {
     "gprnet": {}, "pcn": {}, "pfnet": {}, "gprnet_anchored": {"input_seeds": 448},
     "gprnet_fullfuse": {"fuse_hidden": 0},  # the paper's fused layer at full width (no 64-wide bottleneck)
+    # and its branches as a 1024/512/256 FC chain, 256/128/64 points read off successive layers
+    "gprnet_pyramid": {"fuse_hidden": 0, "branch_widths": (1024, 512, 256)},
 }
 MIN_LR_FRACTION = 0.05
 # A sample whose truth reaches this far outside the unit cube had a sparse cloud far smaller than its pipes
