@@ -98,9 +98,10 @@ def completion_recipe(model_name: str, checkpoint: Path, state: dict[str, Any], 
     minutes = round(history[-1]["elapsed_s"] / 60.0) if history else 35
     name = f" --name {run}" if run != model_name else ""
     return {"reproduce": [
+        f"scripts/train_completion_models.sh {minutes}  # the four runs at once, equal time; or this run alone:",
         "python -m training.pointcloud_data train val test",
         f"python -m training.train_completion --model {model_name}{name} --minutes {minutes} "
-        f"--seed {state.get('seed', 0)}",
+        f"--threads 1 --seed {state.get('seed', 0)}",
         f"python tools/export_onnx.py {model_name} --checkpoint {checkpoint} --out {out}",
         "python -m training.evaluate --out models/",
     ], "evaluation": "models/EVAL.md"}

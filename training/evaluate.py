@@ -316,26 +316,28 @@ def markdown(report: dict[str, Any]) -> str:
 
 REDUCTIONS = """## Sizes vs the paper (2-core CPU budget)
 
-* GPRNet: encoder 64/128/256 with max-pools as in the paper; the fused layer on [point features;
-  pooled globals] (896 wide) goes through a 64-wide bottleneck to the 896-d global vector instead of a
-  full-width layer; decoder FC branches 256/128/64 + reshaped global 448 = 896 seeds, folding MLP 128
-  wide (3×3 grid) → 8064 points (the paper's count; the runtime's config says 8192).
+* GPRNet: encoder 64/128/256 with max-pools as in the paper, then the paper's one fused PointNet layer on
+  [point features; all pooled globals] (448 + 448 wide) straight to the 896-d global vector. Decoder: FC
+  branches for 256/128/64 points plus the global vector reshaped by an MLP into 448 = 896 seeds, a folding
+  MLP 128 wide around each seed (3×3 grid) → 8064 points (the paper's count; the runtime's config says
+  8192). Two branch layouts were trained at equal time and both are scored: "one-layer branches" reads
+  all three off one shared FC 512; "FC-chain branches" reads them off successive layers of a 1024/512/256
+  FC chain, as PF-Net's pyramid decoder (which the paper's builds on) does. The shipped models/gprnet.onnx
+  is the one with the lower *validation* CD2 (see Training), not the better test figure.
 * PCN: encoder 128-256 / 256-512 (paper 128-256 / 512-1024), 896 coarse points, 3×3 fold, folding
   MLP 128 wide (paper 4×4 fold of 1024 coarse points, 512 wide).
 * PF-Net: three resolutions by striding the (already random) input instead of farthest-point sampling,
   CMLP 64-128-256, latent 512, pyramid 112 → 896 → 8064, predicting the whole cloud (PF-Net predicts
   the missing part only).
-* Training: every model gets the same budget, 35 wall-clock minutes on one core of the 2-core CPU (two
-  models trained at a time), batch 8, Adam 1e-3 with a cosine over the time budget, loss = CD2 over the
-  model's stages on random 2048-point subsets, the best validation epoch kept (Training table: epochs).
-  The paper trains for hundreds of epochs on a GPU; these models are still improving when the budget
-  ends. What the narrower layers cost in accuracy was not measured (no budget to train full widths).
+* Training: every model gets the same budget and the same recipe — the same wall-clock minutes with all
+  the scored models training at once on the 2-core CPU (one thread each), batch 8, Adam 1e-3 with a
+  cosine over the time budget, loss = CD2 over the model's stages on random 2048-point subsets, the best
+  validation epoch kept (Training table: epochs, minutes). The paper trains for hundreds of epochs on a
+  GPU; these models are still improving when the budget ends, so the table measures the architectures at
+  this budget, not at convergence. What the narrower PCN costs was not measured.
 * Two training samples whose truth lies > 1.5 cube widths outside their sparse cloud are left out of
   training (seeds 323, 353: a speckle blob on one line made the cube tiny; one such sample's loss was
   ~10³ times a normal one and swamped the gradient of every epoch). The test split has none.
-* Variant: "GPRNet (input-anchored variant)" replaces the reshaped-global seeds by input points moved
-  by learned offsets (zero-initialised, as is the fold): our change, not the paper's. "GPRNet" is the
-  paper's decoder. PCN and PF-Net are as published (sizes above), not anchored.
 """
 
 
