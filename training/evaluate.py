@@ -247,7 +247,9 @@ def training_summary(onnx_path: Path) -> dict[str, Any]:
     if checkpoint is None:
         return summary
     state = torch.load(checkpoint, weights_only=False)
-    history = state.get("history", [])
+    # best.pt holds the history up to the best epoch; the whole run's is written beside it at the end
+    whole_run = checkpoint.parent / "history.json"
+    history = json.loads(whole_run.read_text()) if whole_run.exists() else state.get("history", [])
     return summary | {
         "parameters": int(sum(v.numel() for v in state["model"].values())),
         "model_config": state["model_config"], "best_epoch": state["epoch"], "epochs": len(history),
