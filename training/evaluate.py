@@ -58,6 +58,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
         chosen = [r for r in rows if case == "all" or r["case"] == case]
         if chosen:
             out[case] = {"cd2_e3": 1e3 * float(np.mean([r["cd2"] for r in chosen])),
+                         # a few samples with a tiny unit cube rule the mean; the median shows the typical one
+                         "median_cd2_e3": 1e3 * float(np.median([r["cd2"] for r in chosen])),
                          "cd1_e2": 1e2 * float(np.mean([r["cd1"] for r in chosen])),
                          "fscore": float(np.mean([r["fscore"] for r in chosen])), "n": len(chosen)}
     return out
@@ -281,10 +283,12 @@ def markdown(report: dict[str, Any]) -> str:
     t1 = report["table1"]
     lines = [f"# Completion evaluation ({report['test_samples']} held-out test scenes)", "",
              "Clouds normalised to the unit cube (DESIGN §6); CD2×10³, CD1×10², F-score at 0.01.", "",
-             "## Table I — overall", "", _row(["method", "CD2×10³", "CD1×10²", "F@1%"]), _row(["---"] * 4)]
+             "## Table I — overall", "", _row(["method", "CD2×10³", "median CD2×10³", "CD1×10²", "F@1%"]),
+             _row(["---"] * 5)]
     for name, tables in t1.items():
         a = tables["all"]
-        lines.append(_row([NAMES.get(name, name), f"{a['cd2_e3']:.3f}", f"{a['cd1_e2']:.3f}", f"{a['fscore']:.3f}"]))
+        lines.append(_row([NAMES.get(name, name), f"{a['cd2_e3']:.3f}", f"{a['median_cd2_e3']:.3f}",
+                           f"{a['cd1_e2']:.3f}", f"{a['fscore']:.3f}"]))
     lines += ["", "## Table I — per case (CD2×10³ / F@1%)", "", _row(["method", *CASES]), _row(["---"] * 7)]
     for name, tables in t1.items():
         cells = [f"{tables[c]['cd2_e3']:.2f} / {tables[c]['fscore']:.2f}" if c in tables else "-" for c in CASES]
