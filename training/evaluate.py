@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import json
 import time
 from collections.abc import Callable
@@ -32,11 +33,11 @@ from gprbot.infer.gprnet import INPUT_NAME
 from gprbot.sim.truth import sample_pipe_interiors
 from training.chamfer import cloud_metrics
 from training.pointcloud_data import CACHE_DIR, DENSE_POINTS, load_split, survey_slices
-from training.pointcloud_models import BUILDERS
+from training.pointcloud_models import BUILDERS, GPRNet
 from training.random_scenes import CASES, scene_for_seed, split_seeds
 
 # models/<name>.onnx, those present: the shipped GPRNet, its ablation variants, the two baselines
-LEARNED = ("gprnet", "gprnet_fullfuse", "gprnet_pyramid", "gprnet_bottleneck", "gprnet_anchored", "pcn", "pfnet")
+LEARNED = ("gprnet", "gprnet_fullfuse", "gprnet_pyramid", "gprnet_anchored", "pcn", "pfnet")
 NOISE_LEVELS = (0.0, 0.01, 0.05, 0.1, 0.2)
 LATENCY_RUNS = 20
 THREADS = 2
@@ -236,7 +237,7 @@ def evaluate(
 
 
 NAMES = {"gprnet": "GPRNet (shipped)", "gprnet_fullfuse": "GPRNet, one-layer branches",
-         "gprnet_pyramid": "GPRNet, FC-chain branches", "gprnet_bottleneck": "GPRNet, 64-wide fuse bottleneck",
+         "gprnet_pyramid": "GPRNet, FC-chain branches",
          "gprnet_anchored": "GPRNet (input-anchored variant)", "pcn": "PCN", "pfnet": "PF-Net",
          "geometric": "geometric fit", "truth_floor": "truth resample (floor)",
          "sparse_copy": "sparse input as the answer"}
@@ -265,12 +266,17 @@ def describe_variant(name: str, config: dict[str, Any]) -> str:
     """A model config in words for the training table (GPRNet's options; the baselines' sizes are below it)."""
     if not name.startswith("gprnet"):
         return "as published (sizes below)"
-    fuse = config.get("fuse_hidden", 64)
-    parts = ["fused layer 896 wide (paper)" if fuse == 0 else f"fused layer via a {fuse}-wide bottleneck"]
-    widths = config.get("branch_widths") or ()
-    parts.append(f"branches off FC {'/'.join(str(w) for w in widths)}" if widths else "branches off one FC 512")
-    if config.get("input_seeds"):
-        parts.append(f"input-anchored ({config['input_seeds']} seeds)")
+    defaults = {k: p.default for k, p in inspect.signature(GPRNet.__init__).parameters.items()
+                if p.default is not inspect.Parameter.empty}
+    cfg = defaults | config  # a checkpoint's config names only what differs from GPRNet's defaults
+    fuse = cfg["fuse_hidden"]
+    parts = [f"fused layer {cfg['global_dim']} wide (paper)" if fuse == 0
+             else f"fused layer via a {fuse}-wide bottleneck"]
+    widths = cfg["branch_widths"]
+    parts.append(f"branches off FC {'/'.join(str(w) for w in widths)}" if widths
+                 else f"branches off one FC {cfg['decoder_hidden']}")
+    if cfg["input_seeds"]:
+        parts.append(f"input-anchored ({cfg['input_seeds']} seeds)")
     return ", ".join(parts)
 
 
