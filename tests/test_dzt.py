@@ -237,10 +237,11 @@ def test_non_dzt_file_is_refused_by_its_tag(tmp_path: Path) -> None:
         (6, struct.pack("<h", 12), r"rh_bits=12"),
         (52, struct.pack("<h", 0), r"rh_nchan=0"),
         (52, struct.pack("<h", 300), r"rh_nchan=300"),
-        (4, struct.pack("<h", -5), r"rh_nsamp=-5"),
+        (4, struct.pack("<h", 1), r"rh_nsamp=1 \(expected 2\.\.65535"),
         (26, struct.pack("<f", float("nan")), r"rhf_range=nan"),
-        (54, struct.pack("<f", -3.0), r"rhf_epsr=-3.0"),
-        (2, struct.pack("<h", 0), r"rh_data=0 puts the data inside"),
+        (26, struct.pack("<f", 1e5), r"rhf_range=100000 ns \(expected 0 < range <= 10000 ns\)"),
+        (26, struct.pack("<f", 1e-6), r"sample interval of 1\.25e-07 ns"),
+        (2, struct.pack("<h", 1), r"rh_data=1 puts the data at byte 1024, inside the 2 channel header"),
     ],
 )
 def test_absurd_header_values_are_named(offset: int, value: bytes, message: str) -> None:
