@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -11,6 +10,7 @@ import numpy as np
 
 from gprbot.config import GprConfig, InterpretationConfig, load_config
 from gprbot.errors import DataFormatError, InterpretationError
+from gprbot.gpr.antennas import GSSI_ANTENNAS, antenna_frequency_mhz, check_frequency_mhz
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.dzt import DztHeader, read_dzt
 from gprbot.gpr.interpret import interpret_bscan
@@ -19,29 +19,17 @@ from gprbot.gpr.render import write_bscan_png, write_cross_section_png
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.infer.outputs import write_json_atomic
 
-# GSSI antenna model numbers → centre frequency (MHz), from GSSI's antenna catalogue.
-GSSI_ANTENNAS = {
-    "3207": 100, "5106": 200, "50270": 270, "5103": 400, "50400": 400, "3102": 500,
-    "3101": 900, "5100": 1500, "51600": 1600, "62000": 2000, "52600": 2600, "62300": 2300,
-}
+__all__ = ["GSSI_ANTENNAS", "antenna_frequency_mhz", "dzt_bscan", "gpr_config_for", "interpret_dzt"]
+
 # A GSSI ground-coupled antenna rides on the surface; its Tx–Rx spacing is a fraction of a
 # wavelength in air. These are approximations for the travel-time model, not vendor figures.
 DEFAULT_OFFSET_M = {100: 0.5, 200: 0.3, 270: 0.25, 400: 0.16, 500: 0.12, 900: 0.06}
 
 
-def antenna_frequency_mhz(antenna: str) -> float | None:
-    """Centre frequency of a GSSI antenna from its header name ("5103", "400MHz", ...)."""
-    m = re.search(r"(\d+(?:\.\d+)?)\s*([MG])Hz", antenna, re.IGNORECASE)
-    if m:
-        return float(m.group(1)) * (1000.0 if m.group(2).upper() == "G" else 1.0)
-    for model, mhz in GSSI_ANTENNAS.items():
-        if model in antenna:
-            return float(mhz)
-    return None
-
-
 def gpr_config_for(header: DztHeader, base: GprConfig, frequency_mhz: float | None) -> GprConfig:
     """The acquisition settings of a DZT file expressed as a GprConfig."""
+    if frequency_mhz is not None and (problem := check_frequency_mhz(frequency_mhz)) is not None:
+        raise DataFormatError(f"--frequency: {problem}; give the antenna's centre frequency in MHz")
     mhz = frequency_mhz or antenna_frequency_mhz(header.antenna)
     if mhz is None:
         raise DataFormatError(
