@@ -72,13 +72,13 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from gprbot.gpr.dzt import format_info, header_info, read_dzt
+    from gprbot.gpr.dzt import dzt_info, format_dzt_info, read_dzt
 
     dzt = read_dzt(args.file, allow_partial=args.allow_partial)
     if args.json:
-        print(json.dumps(header_info(dzt.header), indent=2, default=str))
+        print(json.dumps(dzt_info(dzt), indent=2, default=str))
     else:
-        print(format_info(dzt.header))
+        print(format_dzt_info(dzt))
     return 0
 
 
