@@ -1,4 +1,4 @@
-"""The `gprbot` command: demo, run, shell, pull, replay, interpret, info."""
+"""The `gprbot` command: demo, run, shell, pull, replay, interpret, info, convert."""
 
 from __future__ import annotations
 
@@ -72,24 +72,49 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from gprbot.gpr.dzt import dzt_info, format_dzt_info, read_dzt
+    from gprbot.gpr.formats import detect_format, read_radargram
 
-    dzt = read_dzt(args.file, allow_partial=args.allow_partial)
-    if args.json:
-        print(json.dumps(dzt_info(dzt), indent=2, default=str))
-    else:
-        print(format_dzt_info(dzt))
+    if detect_format(args.file) == "dzt":  # DZT keeps its own, richer output (marks, sidecars, gain)
+        from gprbot.gpr.dzt import dzt_info, format_dzt_info, read_dzt
+
+        dzt = read_dzt(args.file, allow_partial=args.allow_partial)
+        print(json.dumps(dzt_info(dzt), indent=2, default=str) if args.json else format_dzt_info(dzt))
+        return 0
+    from gprbot.gpr.formats.info import format_radargram_info, radargram_info
+
+    rg = read_radargram(args.file, allow_partial=args.allow_partial)
+    print(json.dumps(radargram_info(rg), indent=2, default=str) if args.json else format_radargram_info(rg))
     return 0
 
 
 def _cmd_interpret(args: argparse.Namespace) -> int:
-    from gprbot.interpret_file import interpret_dzt
+    from gprbot.interpret_file import interpret_file
 
     out = Path(args.out) if args.out else None
-    report = interpret_dzt(
+    report = interpret_file(
         Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing, args.allow_partial
     )
     print(report)
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from gprbot.gpr.antennas import antenna_frequency_mhz
+    from gprbot.gpr.formats import read_radargram, write_radargram
+    from gprbot.gpr.formats.radargram import uniform_positions
+
+    rg = read_radargram(args.input, channel=args.channel, allow_partial=args.allow_partial)
+    if rg.frequency_mhz is None and (mhz := args.frequency or antenna_frequency_mhz(rg.antenna)):
+        rg = dataclasses.replace(rg, frequency_mhz=mhz)
+    if args.spacing:
+        rg = dataclasses.replace(rg, positions_m=uniform_positions(rg.traces, args.spacing))
+    written, notes = write_radargram(args.output, rg)
+    for note in (*rg.warnings, *notes):
+        print(f"note: {note}")
+    print(f"{args.input} ({rg.source_format}, {rg.traces} traces × {rg.n_samples} samples) → "
+          + ", ".join(str(p) for p in written))
     return 0
 
 
@@ -150,13 +175,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--check", action="store_true", help="exit 3 unless every pipe is within the bounds")
     demo.set_defaults(func=_cmd_demo)
 
-    info = sub.add_parser("info", help="print the header of a GSSI DZT file")
+    info = sub.add_parser("info", help="print the header of a GPR file (DZT, DT1+HD, RD3/RD7+RAD, SEG-Y, SU, gprMax)")
     info.add_argument("file")
     info.add_argument("--json", action="store_true", help="print JSON instead of a table")
     info.add_argument("--allow-partial", action="store_true", help="drop a trailing partial scan (a cut file)")
     info.set_defaults(func=_cmd_info)
 
-    interp = sub.add_parser("interpret", help="interpret one B-scan (a DZT file) into pipe detections")
+    interp = sub.add_parser("interpret", help="interpret one B-scan (any GPR file `info` reads) into pipe detections")
     interp.add_argument("file")
     interp.add_argument("--velocity", type=float, help="wave velocity in m/ns (default: estimated)")
     interp.add_argument("--channel", type=int, default=0, help="channel of a multi-channel file")
@@ -165,6 +190,15 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
     interp.set_defaults(func=_cmd_interpret)
+
+    convert = sub.add_parser("convert", help="convert a GPR file (any format `info` reads) to .DZT, .DT1, .sgy or .su")
+    convert.add_argument("input")
+    convert.add_argument("output", help="the output file; its suffix picks the format (.DZT, .DT1, .sgy/.segy, .su)")
+    convert.add_argument("--channel", type=int, default=0, help="channel of a multi-channel DZT file")
+    convert.add_argument("--frequency", type=float, help="antenna centre frequency in MHz, when the input lacks it")
+    convert.add_argument("--spacing", type=float, help="trace spacing in m, replacing the input's positions")
+    convert.add_argument("--allow-partial", action="store_true", help="drop a trailing partial trace (a cut file)")
+    convert.set_defaults(func=_cmd_convert)
 
     run = sub.add_parser("run", help="run the robot daemon (the simulated robot unless the config names devices)")
     run.add_argument("--config", help="config YAML (default: the embedded simulation config)")
