@@ -64,6 +64,6 @@ def run_demo(cfg: Config, scene: Scene, out_dir: Path) -> DemoResult:
         "config": to_dict(cfg),
     }
     region_pad = (region[0] - 0.2, region[1] + 0.2, region[2] - 0.2, region[3] + 0.2)
-    write_survey_outputs(out_dir, result, meta, region_pad, [p.points for p in scene.pipes], truth_masks)
+    write_survey_outputs(out_dir, result, meta, region_pad, [p.points for p in scene.pipes], truth_masks, bscans)
     ok = within_bounds(matches)
     return DemoResult(out_dir, result, matches, extras, table, ok, time.perf_counter() - start)

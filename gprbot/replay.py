@@ -166,7 +166,7 @@ def replay_run(run_dir: Path, out_dir: Path, cfg: Config | None = None) -> Surve
         "incomplete_lines": {str(k): v for k, v in sorted(run.incomplete_lines.items())},
         "config": to_dict(run.config),
     }
-    write_survey_outputs(Path(out_dir), result, meta, (lo[0], hi[0], lo[1], hi[1]))
+    write_survey_outputs(Path(out_dir), result, meta, (lo[0], hi[0], lo[1], hi[1]), raw_lines=bscans)
     return result
 
 

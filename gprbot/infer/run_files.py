@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gprbot.gpr.bscan import BScan
+from gprbot.gpr.formats.export import export_survey_lines
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
 from gprbot.infer.completion import pipe_colors
 from gprbot.infer.outputs import write_json_atomic, write_pipes_json
@@ -27,6 +30,7 @@ def write_survey_outputs(
     extent_xy: tuple[float, float, float, float],
     truth_axes: list[np.ndarray] | None = None,
     truth_masks: dict[int, np.ndarray] | None = None,
+    raw_lines: Mapping[int, BScan] | None = None,
 ) -> list[Path]:
     """Write every result file of a survey into out_dir (created if needed); returns the paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -50,6 +54,8 @@ def write_survey_outputs(
         write_cross_section_png(section_png, lr.section, truth)
         written += [bscan_png, section_png]
 
+    if raw_lines:  # the recorded traces, for GPR programs: line-NN.DZT, .DT1/.HD, -poses.csv
+        written += export_survey_lines(out_dir, raw_lines, meta.get("config", {}).get("gpr"))
     survey_lines = [lr.bscan.positions[:, :2] for lr in result.lines]
     map_png = out_dir / "map.png"
     render_topdown(map_png, recon, extent_xy, truth_axes or [], survey_lines)

@@ -210,7 +210,8 @@ class SurveyRunner:
         x0, y0 = run.survey.start_xy_m
         extent = (x0 - 0.2, x0 + run.survey.length_m + 0.2, y0 - 0.2,
                   y0 + (run.survey.lines - 1) * run.survey.spacing_m + 0.2)
-        await asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent, self.truth_axes)
+        await asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent, self.truth_axes,
+                                raw_lines=run.bscans)
         run.pipes = len(result.reconstruction.pipes)
         run.state = "aborted" if run.abort_reason else "done"
         self.emit(f"survey done {run.name} pipes {run.pipes}")

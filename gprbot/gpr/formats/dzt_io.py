@@ -52,7 +52,9 @@ def write_dzt_radargram(path: Path, rg: Radargram) -> tuple[list[Path], list[str
         antenna = f"{rg.frequency_mhz:g}MHz"
     else:
         antenna = rg.antenna if len(rg.antenna) <= 14 and rg.antenna.isascii() else ""
+    sps = rg.header.get("traces_per_s")
+    sps = float(sps) if isinstance(sps, float | int) and 0 <= sps < 1e6 else 0.0
     stored = (counts + 32768).astype(np.uint16).T
     write_dzt(path, stored, range_ns=rg.window_ns, bits=16, traces_per_m=1.0 / step if step else 0.0,
-              eps_r=float(eps), antenna=antenna)
+              traces_per_s=sps, eps_r=float(eps), antenna=antenna)
     return [path], notes
