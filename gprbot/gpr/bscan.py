@@ -82,6 +82,7 @@ class CrossSection:
     detections: tuple[Detection, ...]
     velocity_m_per_ns: float
     velocity_estimated: bool
+    rebars: tuple[Detection, ...] = ()  # reinforcement bars found on the line (not pipes, not in the mask)
 
 
 def along_track_distance(positions: FloatArray) -> FloatArray:

@@ -1,0 +1,151 @@
+"""Stage 4b: cylinders fitted to hyperbolas' picks — centre, top depth, radius, and velocity when free.
+
+The model is the refracted two-way time to the cylinder's specular point (antenna height and Tx–Rx
+offset, `geometry.cylinder_time`). Parameters are the along-track centre x0, the depth of the top d
+(the centre lies at d + R), the radius R and — when not given — the velocity. All of a line's
+hyperbolas are fitted at once by a batched, bounded Levenberg–Marquardt with a robust (soft-L1) loss:
+one numpy evaluation serves every hyperbola, which keeps a line to a few milliseconds. The covariance
+says what the picks support: on one hyperbola R and v trade off, so a free-velocity fit of a large pipe
+has a wide v interval and the survey velocity weighs it accordingly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.picks import Picks
+from gprbot.gpr.chain.prepare import PreparedBScan
+
+FloatArray = NDArray[np.float64]
+
+R_MAX_M = 0.2
+V_BOUNDS = (0.035, 0.29)
+MIN_PICKS = 5
+PICK_STD_PERIODS = 0.03  # floor of a pick's timing error, in periods
+ROBUST_SCALE = 2.0  # soft-L1 scale, in pick standard deviations
+ITERATIONS = 25
+_STEP = np.array([1e-4, 1e-4, 1e-4, 1e-4])  # finite-difference steps (m, m, m, m/ns)
+
+
+@dataclass(frozen=True)
+class CylinderFit:
+    """A fitted reflector: centre x0 and depth (m), radius, velocity (m/ns), 1-sigma errors, misfit."""
+
+    x0_m: float
+    top_m: float
+    radius_m: float
+    v: float
+    sigma_x0_m: float
+    sigma_top_m: float
+    sigma_radius_m: float
+    sigma_v: float
+    rms_ns: float
+    n_picks: int
+
+    @property
+    def depth_m(self) -> float:
+        """Depth of the centre below the surface (m)."""
+        return self.top_m + self.radius_m
+
+
+def _padded(picks: Sequence[Picks]) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """(x, t, mask) of the picks as (batch, longest) arrays."""
+    n = max(len(p.x_m) for p in picks)
+    x, t = np.zeros((len(picks), n)), np.zeros((len(picks), n))
+    mask = np.zeros((len(picks), n), dtype=bool)
+    for i, p in enumerate(picks):
+        k = len(p.x_m)
+        x[i, :k], t[i, :k], mask[i, :k] = p.x_m, p.t_ns, True
+        x[i, k:] = p.x_m[-1] if k else 0.0
+    return x, t, mask
+
+
+def fit_cylinders(
+    prep: PreparedBScan, picks: Sequence[Picks], v: float | Sequence[float], *, free_velocity: bool
+) -> list[CylinderFit | None]:
+    """Fit every hyperbola's picks (None where there are too few); `v` is the start or the fixed velocity."""
+    usable = [i for i, p in enumerate(picks) if len(p.x_m) >= MIN_PICKS]
+    out: list[CylinderFit | None] = [None] * len(picks)
+    if not usable:
+        return out
+    sel = [picks[i] for i in usable]
+    x, t, mask = _padded(sel)
+    v0 = np.broadcast_to(np.asarray(v, dtype=np.float64), (len(picks),))[usable]
+    sigma_t = max(PICK_STD_PERIODS * prep.period_ns, 0.5 * prep.dt_ns)
+    h, off = prep.antenna_height_m, prep.tx_rx_offset_m
+    n_par = 4 if free_velocity else 3
+    apex = np.where(mask, t, np.inf).argmin(axis=1)
+    rows = np.arange(len(sel))
+    p = np.zeros((len(sel), n_par))
+    p[:, 0] = x[rows, apex]
+    p[:, 1] = np.maximum(0.003, 0.5 * v0 * t[rows, apex])
+    p[:, 2] = 0.01
+    if free_velocity:
+        p[:, 3] = v0
+    lo = np.stack([x.min(axis=1) - 0.05, np.zeros(len(sel)), np.zeros(len(sel))]
+                  + ([np.full(len(sel), V_BOUNDS[0])] if free_velocity else []), axis=1)
+    hi = np.stack([x.max(axis=1) + 0.05, np.full(len(sel), 5.0), np.full(len(sel), R_MAX_M)]
+                  + ([np.full(len(sel), V_BOUNDS[1])] if free_velocity else []), axis=1)
+
+    def residual(q: FloatArray) -> FloatArray:
+        vel = q[:, 3:4] if free_velocity else v0[:, None]
+        model = cylinder_time(x, q[:, 0:1], q[:, 1:2] + q[:, 2:3], q[:, 2:3], vel, h, off)
+        return np.where(mask, (model - t) / sigma_t, 0.0)
+
+    def jacobian(q: FloatArray, r: FloatArray) -> FloatArray:
+        cols = []
+        for k in range(n_par):
+            dq = q.copy()
+            step = _STEP[k] if q[0, k] + _STEP[k] <= hi[0, k] else -_STEP[k]
+            dq[:, k] += step
+            cols.append((residual(dq) - r) / step)
+        return np.stack(cols, axis=-1)  # (batch, n, n_par)
+
+    def cost(r: FloatArray) -> FloatArray:
+        return np.sum(2.0 * ROBUST_SCALE**2 * (np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2) - 1.0), axis=1)
+
+    lam = np.full(len(sel), 1e-2)
+    r = residual(p)
+    c = cost(r)
+    for _ in range(ITERATIONS):
+        J = jacobian(p, r)
+        w = 1.0 / np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2)  # soft-L1 as iteratively reweighted least squares
+        JtW = np.swapaxes(J * w[..., None], 1, 2)
+        A = JtW @ J
+        g = np.einsum("bpn,bn->bp", JtW, r)
+        diag = np.einsum("bpp->bp", A) + 1e-12
+        step = -np.linalg.solve(A + lam[:, None, None] * np.einsum("bp,pq->bpq", diag, np.eye(n_par)), g[..., None])[..., 0]
+        trial = np.clip(p + step, lo, hi)
+        r_trial = residual(trial)
+        c_trial = cost(r_trial)
+        better = c_trial < c
+        p = np.where(better[:, None], trial, p)
+        r = np.where(better[:, None], r_trial, r)
+        c = np.where(better, c_trial, c)
+        lam = np.where(better, lam * 0.3, lam * 10.0)
+        if np.all(np.abs(step) < 1e-6) or np.all(lam > 1e8):
+            break
+    J = jacobian(p, r)
+    for b, i in enumerate(usable):
+        m = mask[b]
+        jb, rb = J[b][m], r[b][m]
+        dof = max(1, int(m.sum()) - n_par)
+        scale = max(1.0, float(rb @ rb) / dof)
+        cov = np.linalg.pinv(jb.T @ jb) * scale
+        sig = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.all(np.isfinite(cov)) else np.full(n_par, np.inf)
+        vel = float(p[b, 3]) if free_velocity else float(v0[b])
+        out[i] = CylinderFit(float(p[b, 0]), float(p[b, 1]), float(p[b, 2]), vel, float(sig[0]), float(sig[1]),
+                             float(sig[2]), float(sig[3]) if free_velocity else 0.0,
+                             math.sqrt(float(np.mean(rb * rb))) * sigma_t, int(m.sum()))
+    return out
+
+
+def fit_cylinder(prep: PreparedBScan, picks: Picks, v: float, *, free_velocity: bool) -> CylinderFit | None:
+    """Fit one hyperbola's picks (see `fit_cylinders`)."""
+    return fit_cylinders(prep, [picks], v, free_velocity=free_velocity)[0]

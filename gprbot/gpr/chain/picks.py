@@ -1,0 +1,91 @@
+"""Stage 4a: picks along one hyperbola — the reflection's time on every trace of its flanks.
+
+Tracking starts at the apex with the curve the semblance scan liked best, picks the envelope's peak
+near the predicted time on each trace outwards (the same definition as time zero's). A flank ends after two traces without a clear pick, or at the aperture.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.gpr.chain.candidates import ApexCandidate
+from gprbot.gpr.chain.prepare import PreparedBScan
+
+FloatArray = NDArray[np.float64]
+
+PICK_APERTURE_DEG = 60.0
+MIN_PICK_SNR = 3.0
+MIN_PICK_RATIO = 0.06  # of the apex amplitude: weaker picks are another event or noise
+MAX_MISSES = 2
+MAX_EARLIER_PERIODS = 0.1
+
+
+@dataclass(frozen=True)
+class Picks:
+    """Times (ns after transmit) of one hyperbola on the traces at x_m, their amplitudes, per-side counts."""
+
+    candidate: ApexCandidate
+    x_m: FloatArray
+    t_ns: FloatArray
+    amplitude: FloatArray
+    left: int
+    right: int
+
+
+def _refine(y: FloatArray, i: int) -> float:
+    """Sub-sample position of the maximum of y at index i (three-point parabola)."""
+    if i <= 0 or i >= len(y) - 1:
+        return float(i)
+    a, b, c = y[i - 1], y[i], y[i + 1]
+    denom = a - 2.0 * b + c
+    return float(i) if denom == 0 else float(i + np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
+
+
+def pick_along(
+    prep: PreparedBScan, cand: ApexCandidate, predicted_ns: FloatArray, depth_m: float, search_periods: float = 0.5
+) -> Picks:
+    """Pick the envelope's peak near `predicted_ns` on every column outwards from the apex (NaN: not predicted).
+
+    The envelope, not a signed lobe, is followed: a flank's phase rotates with the angle and where two
+    events overlap, but its envelope peak stays one peak. The search follows the data's drift from the
+    prediction, so a rough first curve still leads along the flank.
+    """
+    nx, ns = prep.data.shape
+    search = max(2, round(search_periods * prep.period_ns / prep.dt_ns))
+    floor = max(MIN_PICK_SNR * prep.noise, MIN_PICK_RATIO * cand.amplitude)
+    reach = depth_m * math.tan(math.radians(PICK_APERTURE_DEG)) + prep.dx_m
+    out: dict[int, tuple[float, float]] = {}
+    counts = []
+    for step in (-1, 1):
+        misses, found, shift, last = 0, 0, 0.0, -math.inf
+        col = cand.column
+        while 0 <= col < nx and misses < MAX_MISSES:
+            if abs(col - cand.column) * prep.dx_m > reach or not math.isfinite(predicted_ns[col]):
+                break
+            centre = (predicted_ns[col] + prep.t0_ns) / prep.dt_ns + shift
+            lo, hi = max(0, round(centre) - search), min(ns, round(centre) + search + 1)
+            if hi - lo < 3:
+                break
+            e = prep.envelope[col, lo:hi]
+            k = int(np.argmax(e))
+            s = lo + _refine(e, k)
+            # Away from its apex a hyperbola only gets later: an earlier peak belongs to another event.
+            earlier = s * prep.dt_ns < last - MAX_EARLIER_PERIODS * prep.period_ns
+            if e[k] < floor or k in (0, hi - lo - 1) or earlier:
+                misses += 1
+            else:
+                misses = 0
+                last = max(last, s * prep.dt_ns)
+                shift = s - (predicted_ns[col] + prep.t0_ns) / prep.dt_ns
+                out[col] = (s * prep.dt_ns - prep.t0_ns, float(e[k]))
+                found += col != cand.column
+            col += step
+        counts.append(found)
+    cols = np.array(sorted(out), dtype=np.intp)
+    t = np.array([out[c][0] for c in cols])
+    a = np.array([out[c][1] for c in cols])
+    return Picks(cand, prep.x_m[cols], t, a, counts[0], counts[1])

@@ -1,0 +1,114 @@
+"""Stage 4: apex candidates → fitted reflectors (one per hyperbola), each with its picks and its fits.
+
+Every candidate is scanned (semblance over velocity and radius) for a first curve, picked along it and
+fitted with the velocity free, all candidates in one batch; candidates whose fits land on one target (a
+flank, a ringing phase of a stronger one) are merged into the strongest, which is picked again along its
+fitted curve and refitted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from gprbot.gpr.chain.candidates import ApexCandidate
+from gprbot.gpr.chain.fit import CylinderFit, fit_cylinders
+from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.picks import Picks, pick_along
+from gprbot.gpr.chain.prepare import PreparedBScan
+from gprbot.gpr.chain.semblance import (
+    APERTURE_DEG,
+    TravelTable,
+    aperture_mask,
+    centre_depths,
+    curve_samples,
+    semblance,
+    travel_table,
+)
+
+TRIAL_VELOCITIES = np.geomspace(0.04, 0.25, 40)
+TRIAL_RADII = np.array([0.0, 0.006, 0.012, 0.025, 0.04, 0.06, 0.09])
+SAME_TARGET_M = 0.03
+
+
+@dataclass(frozen=True)
+class Reflector:
+    """One hyperbola: its apex candidate, picks, the free-velocity fit and the best scan coherence."""
+
+    candidate: ApexCandidate
+    picks: Picks
+    free_fit: CylinderFit
+    coherence: float
+
+
+def line_table(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> TravelTable | None:
+    """The trial-velocity travel-time table deep and wide enough for the line's deepest candidate."""
+    if not candidates:
+        return None
+    z_max = 0.5 * float(TRIAL_VELOCITIES.max()) * max(c.t_ns for c in candidates) + float(TRIAL_RADII.max()) + 0.05
+    max_lag = int(min(prep.data.shape[0] - 1, np.ceil(z_max * np.tan(np.radians(APERTURE_DEG)) / prep.dx_m)))
+    return travel_table(prep, TRIAL_VELOCITIES, z_max, max(2, max_lag))
+
+
+def _first_curve(prep: PreparedBScan, table: TravelTable, cand: ApexCandidate) -> tuple[float, float, float, float] | None:
+    """(v, radius, centre depth, coherence) of the candidate's best semblance over the trial grid."""
+    zc = centre_depths(table, cand.t_ns, TRIAL_RADII)
+    samples = curve_samples(table, zc, TRIAL_RADII, prep.t0_ns, prep.dt_ns)
+    half = max(1, round(0.25 * prep.period_ns / prep.dt_ns))
+    s = semblance(prep, cand.column, samples, table.lags_m, aperture_mask(table, zc, prep.dx_m), half)
+    s = np.where(np.isfinite(zc), s, 0.0)
+    i, j = np.unravel_index(int(np.argmax(s)), s.shape)
+    if not np.isfinite(zc[i, j]):
+        return None
+    return float(TRIAL_VELOCITIES[i]), float(TRIAL_RADII[j]), float(zc[i, j]), float(s[i, j])
+
+
+def _same_target(a: CylinderFit, b: CylinderFit) -> bool:
+    """Whether two fits describe one target (their tops within a few centimetres)."""
+    return abs(a.x0_m - b.x0_m) <= SAME_TARGET_M + max(a.radius_m, b.radius_m) and abs(a.top_m - b.top_m) <= SAME_TARGET_M
+
+
+def _pick_all(
+    prep: PreparedBScan, cands: Sequence[ApexCandidate], curves: Sequence[tuple[float, float, float, float]],
+    search_periods: float,
+) -> list[Picks]:
+    """Picks of every candidate along its curve (x0 = the candidate's column) at (v, radius, centre depth)."""
+    out = []
+    for cand, (v, r, zc, x0) in zip(cands, curves, strict=True):
+        predicted = cylinder_time(prep.x_m, x0, zc, r, v, prep.antenna_height_m, prep.tx_rx_offset_m)
+        out.append(pick_along(prep, cand, predicted, zc, search_periods))
+    return out
+
+
+def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> tuple[Reflector, ...]:
+    """One free-velocity cylinder fit per distinct hyperbola among the candidates (two rounds of picks)."""
+    table = line_table(prep, candidates)
+    if table is None:
+        return ()
+    firsts = [(c, _first_curve(prep, table, c)) for c in candidates]
+    cands = [c for c, f in firsts if f is not None]
+    starts = [f for _, f in firsts if f is not None]
+    if not cands:
+        return ()
+    curves = [(v, r, zc, float(prep.x_m[c.column])) for c, (v, r, zc, _) in zip(cands, starts, strict=True)]
+    picks = _pick_all(prep, cands, curves, 0.5)
+    fits = fit_cylinders(prep, picks, [s[0] for s in starts], free_velocity=True)
+    # One reflector per target: the strongest candidate's fit stands for the others on the same hyperbola.
+    kept: list[int] = []
+    for i, f in enumerate(fits):
+        if f is not None and not any(_same_target(f, fits[j]) for j in kept if fits[j] is not None):
+            kept.append(i)
+    curves = [(fits[i].v, fits[i].radius_m, fits[i].depth_m, fits[i].x0_m) for i in kept if fits[i] is not None]
+    again = _pick_all(prep, [cands[i] for i in kept], curves, 0.3)
+    refits = fit_cylinders(prep, again, [c[0] for c in curves], free_velocity=True)
+    out = []
+    for k, i in enumerate(kept):
+        first_fit, refit = fits[i], refits[k]
+        assert first_fit is not None
+        if refit is not None and len(again[k].x_m) >= 0.8 * len(picks[i].x_m):
+            out.append(Reflector(cands[i], again[k], refit, starts[i][3]))
+        else:
+            out.append(Reflector(cands[i], picks[i], first_fit, starts[i][3]))
+    return tuple(out)

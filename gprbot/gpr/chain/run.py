@@ -1,0 +1,107 @@
+"""The interpretation chain, one B-scan end to end: prepare → candidates → reflectors → velocity → classify → section.
+
+Each stage is a pure function with a typed result handed to the next (see the stage modules); this
+module only strings them together and draws the cross-section. Nothing here depends on how the data
+were made: wavelet and time zero come from the direct wave, the velocity from the hyperbolas.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.config import GprConfig
+from gprbot.gpr.bscan import BScan, CrossSection, Detection
+from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
+from gprbot.gpr.chain.classify import ClassifiedDetection, classify
+from gprbot.gpr.chain.fit import fit_cylinders
+from gprbot.gpr.chain.prepare import PreparedBScan, prepare
+from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors
+from gprbot.gpr.chain.velocity import VelocityEstimate, combine_velocities
+from gprbot.gpr.migration import depth_axis, kirchhoff_migrate
+
+FloatArray = NDArray[np.float64]
+NOMINAL_VELOCITY = 0.1  # m/ns, concrete: used for depths only when nothing better is known, and said so
+MAX_IMAGE_CELLS = 4_000_000  # the migrated image is decimated in depth beyond this (cost bound)
+
+
+@dataclass(frozen=True)
+class Interpretation:
+    """Everything the chain found on one B-scan, stage by stage, and the notes a user should read."""
+
+    prepared: PreparedBScan
+    candidates: tuple[ApexCandidate, ...]
+    reflectors: tuple[Reflector, ...]
+    velocity: float
+    velocity_sigma: float
+    velocity_source: Literal["given", "estimated", "fallback"]
+    velocity_method: str
+    detections: tuple[ClassifiedDetection, ...]
+    section: CrossSection
+    notes: tuple[str, ...]
+
+    @property
+    def pipes(self) -> tuple[ClassifiedDetection, ...]:
+        """Detections classified as pipes."""
+        return tuple(d for d in self.detections if d.kind == "pipe")
+
+    @property
+    def rebars(self) -> tuple[ClassifiedDetection, ...]:
+        """Detections classified as rebar."""
+        return tuple(d for d in self.detections if d.kind == "rebar")
+
+
+def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v: float, depth_max_m: float,
+             estimated: bool) -> CrossSection:
+    """Migrated image and the filled pipe mask on a (z, x) grid."""
+    dz = max(0.0025, depth_max_m * len(prep.x_m) / MAX_IMAGE_CELLS)
+    z = depth_axis(depth_max_m, dz)
+    image = kirchhoff_migrate(prep.data, prep.x_m, prep.dt_ns, prep.t0_ns, z, v,
+                              antenna_height_m=prep.antenna_height_m, tx_rx_offset_m=prep.tx_rx_offset_m)
+    mask = np.zeros((len(z), len(prep.x_m)), dtype=bool)
+    pipes, bars = [], []
+    for d in detections:
+        item = Detection(d.x_m, d.depth_m, d.radius_m, d.confidence)
+        if d.kind == "pipe":
+            r = max(d.radius_m, 0.5 * dz)
+            mask |= (prep.x_m[None, :] - d.x_m) ** 2 + (z[:, None] - d.depth_m) ** 2 <= r * r
+            pipes.append(item)
+        else:
+            bars.append(item)
+    return CrossSection(mask, prep.x_m, z, image, tuple(pipes), v, estimated, rebars=tuple(bars))
+
+
+def interpret(
+    bscan: BScan, gpr: GprConfig, velocity_m_per_ns: float | None = None, *,
+    fallback_velocity_m_per_ns: float | None = None, depth_max_m: float | None = None,
+) -> Interpretation:
+    """Interpret one B-scan: the velocity given, else estimated from its hyperbolas, else the fallback."""
+    notes: list[str] = []
+    prep = prepare(bscan, gpr)
+    if prep.t0_method != "given":
+        notes.append(f"time zero {prep.t0_ns:.2f} ns from the {prep.t0_method}")
+    candidates = apex_candidates(prep)
+    reflectors = fit_reflectors(prep, candidates)
+    source: Literal["given", "estimated", "fallback"]
+    if velocity_m_per_ns is not None:
+        v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
+    else:
+        est: VelocityEstimate | None = combine_velocities([r.free_fit for r in reflectors])
+        if est is not None:
+            v, sigma, source, how = est.v, est.sigma, "estimated", est.method
+        else:
+            v = fallback_velocity_m_per_ns or NOMINAL_VELOCITY
+            sigma, source = math.nan, "fallback"
+            how = ("no diffraction hyperbola to measure it on; "
+                   + (f"used {v:.4f} m/ns from the file's permittivity" if fallback_velocity_m_per_ns
+                      else f"depths assume {v:.2f} m/ns (typical concrete): pass --velocity"))
+            notes.append(f"velocity not estimated: {how}")
+    fixed = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
+    detections = classify(prep, reflectors, fixed, v)
+    depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
+    section = _section(prep, detections, v, max(depth, 0.05), source == "estimated")
+    return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))

@@ -1,0 +1,100 @@
+"""Coherence of a B-scan along cylinder travel-time curves: the measure the velocity and the fits rest on.
+
+A pipe or bar of radius R with its centre at depth zc is timed as a point diffractor at zc minus 2R/v
+(exact at zero offset and height; within a few percent of a period for the antenna geometries of
+ground-coupled antennas). Travel times are those of `geometry.cylinder_time` (antenna height, Tx–Rx offset in line). The
+coherence is the semblance of the traces along the curve in a window of one period around it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.gpr.chain.prepare import PreparedBScan
+from gprbot.gpr.chain.geometry import cylinder_time
+
+FloatArray = NDArray[np.float64]
+
+MAX_LAGS = 24  # traces used on each side of an apex (strided beyond): enough to see the curvature
+APERTURE_DEG = 50.0
+MIN_SUPPORT = 7  # traces a curve must cross for its semblance to count in full  # in-ground angle from vertical beyond which flanks are not used
+
+
+@dataclass(frozen=True)
+class TravelTable:
+    """Two-way times (nv, nk, nz) to a point at depth z_m[j] from an antenna lags_m[k] along the line."""
+
+    velocities: FloatArray
+    lags_m: FloatArray
+    z_m: FloatArray
+    t_ns: FloatArray
+
+
+def travel_table(prep: PreparedBScan, velocities: FloatArray, z_max_m: float, max_lag_traces: int) -> TravelTable:
+    """Travel times for the trial velocities on the line's lags; straight rays scale as 1/v when height is 0."""
+    stride = max(1, int(np.ceil(max_lag_traces / MAX_LAGS)))
+    lag_idx = np.arange(-max_lag_traces, max_lag_traces + 1, stride)
+    lags = lag_idx * prep.dx_m
+    z = np.linspace(0.002, max(z_max_m, 0.02), 160)
+    v = np.asarray(velocities, dtype=np.float64)[:, None, None]
+    t = cylinder_time(lags[None, :, None], 0.0, z[None, None, :], 0.0, v, prep.antenna_height_m,
+                      prep.tx_rx_offset_m)
+    return TravelTable(np.asarray(velocities, dtype=np.float64), lag_idx.astype(np.float64), z, t)
+
+
+def centre_depths(table: TravelTable, apex_t_ns: float, radii: FloatArray) -> FloatArray:
+    """Centre depth (nv, nr) whose apex time matches `apex_t_ns` for each trial velocity and radius (NaN: none)."""
+    out = np.full((len(table.velocities), len(radii)), np.nan)
+    zero = int(np.argmin(np.abs(table.lags_m)))
+    for i, v in enumerate(table.velocities):
+        column = table.t_ns[i, zero]
+        target = apex_t_ns + 2.0 * radii / v
+        ok = (target >= column[0]) & (target <= column[-1])
+        out[i, ok] = np.interp(target[ok], column, table.z_m)
+    return out
+
+
+def curve_samples(table: TravelTable, zc: FloatArray, radii: FloatArray, t0_ns: float, dt_ns: float) -> FloatArray:
+    """Sample positions (nv, nr, nk) of the curve through every lag for each (velocity, radius) pair."""
+    pos = np.interp(np.nan_to_num(zc, nan=table.z_m[0]), table.z_m, np.arange(len(table.z_m)))
+    j0 = np.clip(pos.astype(np.intp), 0, len(table.z_m) - 2)
+    f = (pos - j0)[..., None]
+    vi = np.arange(len(table.velocities))[:, None]
+    t_lo = table.t_ns[vi, :, j0]  # (nv, nr, nk)
+    t_hi = table.t_ns[vi, :, j0 + 1]
+    t = t_lo * (1.0 - f) + t_hi * f - (2.0 * radii[None, :] / table.velocities[:, None])[..., None]
+    return np.asarray((t + t0_ns) / dt_ns)
+
+
+def semblance(
+    prep: PreparedBScan, column: int, samples: FloatArray, lags: FloatArray, aperture: NDArray[np.bool_],
+    half_window: int,
+) -> FloatArray:
+    """Semblance (...,) of the traces at column+lag along `samples` (..., nk), within a ±half_window window.
+
+    Lags outside the line or the aperture count as absent (not as zeros), so that a hyperbola near the
+    line's end is judged on the flank that exists.
+    """
+    nx, ns = prep.data.shape
+    cols = column + lags.astype(np.intp)
+    inside = (cols >= 0) & (cols < nx)
+    w = np.arange(-half_window, half_window + 1)
+    s = np.rint(samples).astype(np.intp)[..., None] + w  # (..., nk, nw)
+    valid = aperture[..., None] & inside[:, None] & (s >= 0) & (s < ns)
+    vals = np.where(valid, prep.data[np.clip(cols, 0, nx - 1)[:, None], np.clip(s, 0, ns - 1)], 0.0)
+    n = valid[..., 0].sum(axis=-1)
+    stacked = (vals.sum(axis=-2) ** 2).sum(axis=-1)
+    energy = (vals * vals).sum(axis=(-2, -1))
+    # A curve seen on a handful of traces only (it leaves the record) is no evidence of its shape.
+    support = np.minimum(1.0, n / MIN_SUPPORT)
+    return np.asarray(support * stacked / np.maximum(np.maximum(n, 1) * energy, 1e-30))
+
+
+def aperture_mask(table: TravelTable, zc: FloatArray, dx_m: float, min_lags: int = 2) -> NDArray[np.bool_]:
+    """Lags (..., nk) within the aperture angle of a centre at depth zc (always the nearest min_lags)."""
+    reach = np.tan(np.radians(APERTURE_DEG)) * np.nan_to_num(zc, nan=0.0)[..., None]
+    horiz = np.abs(table.lags_m) * dx_m
+    return np.asarray((horiz <= reach) | (np.abs(table.lags_m) <= min_lags * max(1.0, table.lags_m[1] - table.lags_m[0])))

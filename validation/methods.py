@@ -1,0 +1,89 @@
+"""The interpretation methods the evaluation compares, each as `run(bscan, gpr, velocity) -> Outcome`.
+
+- `chain`: the interpretation chain (gprbot.gpr.chain), the product's classical path;
+- `legacy`: the previous classical interpreter (gprbot.gpr.interpret), kept for comparison;
+- `migrationnet`: the shipped MigrationNet ONNX model on the migrated section (needs a velocity: the
+  chain's estimate is handed to it when none is given, and the table says so).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+from gprbot.config import GprConfig, InterpretationConfig
+from gprbot.errors import GprbotError
+from gprbot.gpr.bscan import BScan
+from validation.scoring import Found
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a method found on one B-scan, the velocity it used, whether it estimated it, and its time."""
+
+    found: tuple[Found, ...]
+    velocity: float
+    velocity_estimated: bool
+    seconds: float
+    note: str = ""
+
+
+Method = Callable[[BScan, GprConfig, "float | None"], Outcome]
+
+
+def run_chain(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
+    """The interpretation chain."""
+    from gprbot.gpr.chain.run import interpret
+
+    start = time.perf_counter()
+    result = interpret(bscan, gpr, velocity)
+    seconds = time.perf_counter() - start
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in result.detections)
+    return Outcome(found, result.velocity, result.velocity_source == "estimated", seconds, "; ".join(result.notes))
+
+
+def _interp_config(bscan: BScan, v: float) -> InterpretationConfig:
+    """The legacy interpreter's settings with the depth range of the record."""
+    window = bscan.data.shape[1] * bscan.dt_ns
+    return replace(InterpretationConfig(), depth_max_m=max(0.1, 0.5 * v * window))
+
+
+def run_legacy(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
+    """The previous classical interpreter, as `gprbot interpret` ran it before the chain."""
+    from gprbot.gpr.interpret import interpret_bscan
+    from gprbot.gpr.preprocess import preprocess
+
+    start = time.perf_counter()
+    try:
+        processed = preprocess(bscan, gpr)
+        section = interpret_bscan(processed, gpr, _interp_config(bscan, velocity or 0.12), velocity)
+    except GprbotError as exc:
+        return Outcome((), math.nan, velocity is None, time.perf_counter() - start, f"failed: {exc}")
+    seconds = time.perf_counter() - start
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in section.detections)
+    return Outcome(found, section.velocity_m_per_ns, section.velocity_estimated, seconds)
+
+
+def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
+    """MigrationNet on the section migrated at the given velocity (else the chain's estimate)."""
+    from gprbot.gpr.preprocess import preprocess
+    from gprbot.infer.pipeline import migrationnet_interpreter
+
+    note = ""
+    if velocity is None:
+        chain = run_chain(bscan, gpr, None)
+        velocity, note = chain.velocity, "velocity from the chain"
+    start = time.perf_counter()
+    try:
+        net = migrationnet_interpreter(InterpretationConfig().migrationnet_model, 2)
+        section = net.interpret(preprocess(bscan, gpr), gpr, _interp_config(bscan, velocity), velocity)
+    except GprbotError as exc:
+        return Outcome((), velocity, False, time.perf_counter() - start, f"failed: {exc}")
+    seconds = time.perf_counter() - start
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in section.detections)
+    return Outcome(found, velocity, False, seconds, note)
+
+
+METHODS: dict[str, Method] = {"chain": run_chain, "legacy": run_legacy, "migrationnet": run_migrationnet}
