@@ -20,7 +20,7 @@ from typing import Literal
 
 import numpy as np
 
-from gprbot.gpr.chain.fit import CylinderFit
+from gprbot.gpr.chain.fit import R_MAX_M, CylinderFit
 from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.reflectors import Reflector
 
@@ -33,6 +33,7 @@ ROW_DEPTH_TOLERANCE_M = 0.015
 ROW_SPACING_TOLERANCE = 0.2  # of the row's base spacing
 BAR_MAX_RADIUS_M = 0.02
 ECHO_X_TOLERANCE_M = 0.03
+MULTIPLE_X_TOLERANCE_M = 0.012
 RADIUS_SUPPORT = 0.3  # a radius whose 1-sigma error exceeds this fraction of it is not supported
 
 
@@ -54,22 +55,27 @@ class ClassifiedDetection:
 
 def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
     """Whether a reflector's picks make a diffraction hyperbola consistent with the line's velocity."""
-    p, f = r.picks, r.free_fit
+    p, f = r.picks, r.fit or r.free_fit
     edge = min(r.candidate.column, prep.data.shape[0] - 1 - r.candidate.column) <= 2
     flanks = min(p.left, p.right) >= MIN_FLANK_PICKS or (edge and max(p.left, p.right) >= 2 * MIN_FLANK_PICKS)
     if not flanks or f.rms_ns > MAX_RMS_PERIODS * prep.period_ns or r.coherence < MIN_COHERENCE:
         return False
+    if f.radius_m >= 0.95 * R_MAX_M:
+        return False  # a curve flatter than any pipe: a layer's bump, a multiple, a shadow
     if v is None:
         return True
-    return abs(f.v - v) <= 3.0 * f.sigma_v + VELOCITY_TOLERANCE * v
+    free = r.free_fit
+    return abs(free.v - v) <= 3.0 * free.sigma_v + VELOCITY_TOLERANCE * v
 
 
-def _is_echo(a: CylinderFit, b: CylinderFit, v: float) -> bool:
-    """Whether fit `b` is an echo of the stronger `a`: below it at the same x, within an echo delay."""
-    if abs(a.x0_m - b.x0_m) > ECHO_X_TOLERANCE_M + a.radius_m or b.top_m <= a.top_m:
+def _is_echo(a: CylinderFit, b: CylinderFit) -> bool:
+    """Whether fit `b` is an echo of the stronger `a`: right below it, within an echo delay."""
+    dx = abs(a.x0_m - b.x0_m)
+    if b.top_m <= a.top_m or dx > ECHO_X_TOLERANCE_M + a.radius_m:
         return False
-    inner = b.top_m - a.top_m <= max(2.0 * a.radius_m * 3.0, 0.04)  # bottom of a pipe, ringing
-    multiple = abs(b.top_m - 2.0 * a.top_m) <= 0.25 * a.top_m + 0.01  # twice the time: surface multiple
+    inner = b.top_m - a.top_m <= max(6.0 * a.radius_m, 0.04)  # the bottom of a pipe, ringing
+    # Twice the time: a surface multiple, exactly under its primary.
+    multiple = dx <= MULTIPLE_X_TOLERANCE_M and abs(b.top_m - 2.0 * a.top_m) <= 0.15 * a.top_m + 0.005
     return inner or multiple
 
 
@@ -100,15 +106,13 @@ def _confidence(prep: PreparedBScan, r: Reflector, fit: CylinderFit) -> float:
     return float(snr * (0.5 + 0.5 * flanks) * (0.5 + 0.5 * misfit) * min(1.0, r.coherence / 0.5))
 
 
-def classify(
-    prep: PreparedBScan, reflectors: Sequence[Reflector], fixed: Sequence[CylinderFit | None], v: float
-) -> tuple[ClassifiedDetection, ...]:
-    """Accepted hyperbolas (refitted at the line's velocity `fixed`), echoes dropped, rebar rows marked."""
-    kept = [(r, f) for r, f in zip(reflectors, fixed, strict=True) if f is not None and is_hyperbola(prep, r, v)]
+def classify(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> tuple[ClassifiedDetection, ...]:
+    """Accepted hyperbolas (with their fits at the line's velocity), echoes dropped, rebar rows marked."""
+    kept = [(r, r.fit) for r in reflectors if r.fit is not None and is_hyperbola(prep, r, v)]
     kept.sort(key=lambda rf: -rf[0].candidate.amplitude)
     primary: list[tuple[Reflector, CylinderFit]] = []
     for r, f in kept:
-        if not any(_is_echo(g, f, v) for _, g in primary):
+        if not any(_is_echo(g, f) for _, g in primary):
             primary.append((r, f))
     primary.sort(key=lambda rf: rf[1].x0_m)
     bars = _rebar_rows([f for _, f in primary])

@@ -106,6 +106,16 @@ def decimation_factor(dt_ns: float, centre_frequency_mhz: float) -> int:
     return max(1, int(per_period // SAMPLES_PER_PERIOD))
 
 
+def noise_level(data: FloatArray, blocks: int = 8) -> float:
+    """Robust standard deviation of the quietest of `blocks` time windows (signal fills the others)."""
+    n = data.shape[1]
+    if n < 2 * blocks:
+        return float(1.4826 * np.median(np.abs(data - np.median(data))))
+    edges = np.linspace(0, n, blocks + 1).astype(int)
+    return float(min(1.4826 * np.median(np.abs(data[:, a:b] - np.median(data[:, a:b])))
+                     for a, b in zip(edges[:-1], edges[1:], strict=True)))
+
+
 def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
     """Uniform grid, dewow, time zero from the direct wave (unless known), median background removal."""
     check_bscan(bscan)
@@ -129,8 +139,7 @@ def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
     cleaned = np.asarray(remove_background(dewowed, x, window_m=window, spacing_m=float(x[1] - x[0])), np.float64)
     start = min(cleaned.shape[1] - 1, max(0, round(direct_ns / raw.dt_ns)))
     freq = dominant_frequency(cleaned, raw.dt_ns, start, gpr.centre_frequency_mhz)
-    after = cleaned[:, start:]
-    noise = float(1.4826 * np.median(np.abs(after - np.median(after)))) or float(np.std(cleaned)) or 1e-12
+    noise = noise_level(cleaned[:, start:]) or float(np.std(cleaned)) or 1e-12
     env = np.abs(signal.hilbert(cleaned, axis=1))
     return PreparedBScan(cleaned, env, x, raw.dt_ns, float(t0), method, freq, noise, polarity,
                          gpr.antenna_height_m, gpr.tx_rx_offset_m)

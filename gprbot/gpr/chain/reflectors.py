@@ -9,7 +9,7 @@ fitted curve and refitted.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -35,12 +35,13 @@ SAME_TARGET_M = 0.03
 
 @dataclass(frozen=True)
 class Reflector:
-    """One hyperbola: its apex candidate, picks, the free-velocity fit and the best scan coherence."""
+    """One hyperbola: apex candidate, picks, free-velocity fit, scan coherence, and the fit at the line's velocity."""
 
     candidate: ApexCandidate
     picks: Picks
     free_fit: CylinderFit
     coherence: float
+    fit: CylinderFit | None = None  # at the line's velocity (set by `refit_at_velocity`)
 
 
 def line_table(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> TravelTable | None:
@@ -111,4 +112,30 @@ def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> 
             out.append(Reflector(cands[i], again[k], refit, starts[i][3]))
         else:
             out.append(Reflector(cands[i], picks[i], first_fit, starts[i][3]))
+    return tuple(out)
+
+
+def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> tuple[Reflector, ...]:
+    """Every hyperbola re-picked along its curve at the line's velocity and fitted with it fixed; one per target."""
+    if not reflectors:
+        return ()
+    first = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
+    idx = [i for i, f in enumerate(first) if f is not None]
+    curves = [(v, first[i].radius_m, first[i].depth_m, first[i].x0_m) for i in idx]  # type: ignore[union-attr]
+    again = _pick_all(prep, [reflectors[i].candidate for i in idx], curves, 0.3)
+    refits = fit_cylinders(prep, again, v, free_velocity=False)
+    fitted: list[Reflector] = []
+    for k, i in enumerate(idx):
+        r, refit = reflectors[i], refits[k]
+        if refit is not None and len(again[k].x_m) >= 0.8 * len(r.picks.x_m):
+            fitted.append(replace(r, picks=again[k], fit=refit))
+        else:
+            fitted.append(replace(r, fit=first[i]))
+    # The strongest stands for any others that landed on the same target.
+    fitted.sort(key=lambda r: -r.candidate.amplitude)
+    out: list[Reflector] = []
+    for r in fitted:
+        assert r.fit is not None
+        if not any(o.fit is not None and _same_target(r.fit, o.fit) for o in out):
+            out.append(r)
     return tuple(out)

@@ -18,9 +18,8 @@ from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify
-from gprbot.gpr.chain.fit import fit_cylinders
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
-from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors
+from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.velocity import VelocityEstimate, combine_velocities
 from gprbot.gpr.migration import depth_axis, kirchhoff_migrate
 
@@ -100,8 +99,8 @@ def interpret(
                    + (f"used {v:.4f} m/ns from the file's permittivity" if fallback_velocity_m_per_ns
                       else f"depths assume {v:.2f} m/ns (typical concrete): pass --velocity"))
             notes.append(f"velocity not estimated: {how}")
-    fixed = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
-    detections = classify(prep, reflectors, fixed, v)
+    reflectors = refit_at_velocity(prep, reflectors, v)
+    detections = classify(prep, reflectors, v)
     depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
     section = _section(prep, detections, v, max(depth, 0.05), source == "estimated")
     return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))
