@@ -5,8 +5,8 @@ Rules (what a GPR analyst reads off a radargram):
   velocity of its own consistent with the line's;
 - an **echo** of another target is dropped: a reflector under a stronger one at the same x, arriving
   within a pipe's inner-echo delay (a PVC pipe's bottom, ringing) or at twice its time (a surface multiple);
-- **rebar**: three or more thin reflectors at one cover, evenly spaced (a bar may be missing) —
-  a mesh's row; everything else that passes is a **pipe**;
+- **rebar**: four or more reflectors (three if thin) at one cover, evenly spaced (a bar may be
+  missing) — a mesh's row; everything else that passes is a **pipe**;
 - the reflection's sign against the direct wave says whether the target is slower (metal, water,
   wet) or faster (air-filled, a void) than the host.
 """
@@ -30,10 +30,13 @@ MIN_COHERENCE = 0.25
 VELOCITY_TOLERANCE = 0.25  # relative, on top of the fit's own 3 sigma
 ROW_MIN_BARS = 3
 ROW_DEPTH_TOLERANCE_M = 0.015
-ROW_SPACING_TOLERANCE = 0.2  # of the row's base spacing
+ROW_DEPTH_RELATIVE = 0.35
+ROW_ANY_RADIUS_BARS = 4
+ROW_SPACING_TOLERANCE = 0.25  # of the row's base spacing
 BAR_MAX_RADIUS_M = 0.02
 ECHO_X_TOLERANCE_M = 0.03
 MULTIPLE_X_TOLERANCE_M = 0.012
+STRAIGHT_RATIO = 2.0  # a hyperbola fits its picks at least this much better than a straight line
 RADIUS_SUPPORT = 0.3  # a radius whose 1-sigma error exceeds this fraction of it is not supported
 
 
@@ -57,15 +60,30 @@ def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
     """Whether a reflector's picks make a diffraction hyperbola consistent with the line's velocity."""
     p, f = r.picks, r.fit or r.free_fit
     edge = min(r.candidate.column, prep.data.shape[0] - 1 - r.candidate.column) <= 2
-    flanks = min(p.left, p.right) >= MIN_FLANK_PICKS or (edge and max(p.left, p.right) >= 2 * MIN_FLANK_PICKS)
+    two_sided = min(p.left, p.right) >= MIN_FLANK_PICKS
+    flanks = two_sided or (edge and max(p.left, p.right) >= 2 * MIN_FLANK_PICKS)
     if not flanks or f.rms_ns > MAX_RMS_PERIODS * prep.period_ns or r.coherence < MIN_COHERENCE:
         return False
     if f.radius_m >= 0.95 * R_MAX_M:
         return False  # a curve flatter than any pipe: a layer's bump, a multiple, a shadow
+    if not prep.x_m[0] - prep.dx_m <= f.x0_m <= prep.x_m[-1] + prep.dx_m:
+        return False  # its top lies off the line: a slab edge's or a dipping event's straight arm
+    if not two_sided and not _curved(p.x_m, p.t_ns, f.rms_ns):
+        return False  # one flank only, and straight: a dipping event or a slab edge, not a diffraction
     if v is None:
         return True
     free = r.free_fit
     return abs(free.v - v) <= 3.0 * free.sigma_v + VELOCITY_TOLERANCE * v
+
+
+def _curved(x: np.ndarray, t: np.ndarray, rms_ns: float) -> bool:
+    """Whether picks bend: a straight line through them leaves clearly more misfit than the hyperbola."""
+    if len(x) < 4:
+        return False
+    design = np.stack([np.ones_like(x), x], axis=1)
+    coef, *_ = np.linalg.lstsq(design, t, rcond=None)
+    line_rms = float(np.sqrt(np.mean((design @ coef - t) ** 2)))
+    return line_rms > STRAIGHT_RATIO * rms_ns + 1e-3
 
 
 def _is_echo(a: CylinderFit, b: CylinderFit) -> bool:
@@ -80,20 +98,32 @@ def _is_echo(a: CylinderFit, b: CylinderFit) -> bool:
 
 
 def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
-    """Indices of fits that form rebar rows: ≥ 3 thin bars at one cover, evenly spaced."""
-    thin = [i for i, f in enumerate(fits) if f.radius_m <= BAR_MAX_RADIUS_M]
+    """Indices of fits that form rebar rows: evenly spaced reflectors at one cover (a bar may be missing).
+
+    Four or more make a row whatever their fitted radius (pipes are not laid in regular rows, and on
+    one line radius and velocity trade off); three only when they are thin.
+    """
     bars: set[int] = set()
-    for i in thin:
-        row = sorted((j for j in thin if abs(fits[j].top_m - fits[i].top_m) <= ROW_DEPTH_TOLERANCE_M),
-                     key=lambda j: fits[j].x0_m)
+    order = sorted(range(len(fits)), key=lambda i: fits[i].top_m)
+    for i in order:
+        cover = fits[i].top_m
+        tol = max(ROW_DEPTH_TOLERANCE_M, ROW_DEPTH_RELATIVE * cover)
+        row = sorted((j for j in range(len(fits)) if abs(fits[j].top_m - cover) <= tol), key=lambda j: fits[j].x0_m)
         if len(row) < ROW_MIN_BARS:
             continue
         gaps = np.diff([fits[j].x0_m for j in row])
-        base = float(np.min(gaps[gaps > 0.03])) if np.any(gaps > 0.03) else 0.0
-        if base <= 0.0:
+        if not np.all(gaps > 0.03):
             continue
+        # Bars are placed by hand: spacing varies by ±20 % around the nominal one, and one may be missing.
+        base = float(np.median(gaps))
+        if np.count_nonzero(gaps < 1.5 * base) < len(gaps) / 2:
+            continue
+        base = float(np.median(gaps[gaps < 1.5 * base]))
         multiples = gaps / base
-        if np.all(np.abs(multiples - np.round(multiples)) <= ROW_SPACING_TOLERANCE) and np.max(multiples) <= 3.5:
+        regular = bool(np.all(np.abs(multiples - np.round(multiples)) <= ROW_SPACING_TOLERANCE)
+                       and np.all(np.round(multiples) >= 1) and np.max(multiples) <= 3.5)
+        thin = all(fits[j].radius_m <= BAR_MAX_RADIUS_M for j in row)
+        if regular and (len(row) >= ROW_ANY_RADIUS_BARS or thin):
             bars.update(row)
     return bars
 

@@ -128,9 +128,11 @@ def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: f
     for k, i in enumerate(idx):
         r, refit = reflectors[i], refits[k]
         if refit is not None and len(again[k].x_m) >= 0.8 * len(r.picks.x_m):
-            fitted.append(replace(r, picks=again[k], fit=refit))
+            r = replace(r, picks=again[k], fit=refit)
         else:
-            fitted.append(replace(r, fit=first[i]))
+            r = replace(r, fit=first[i])
+        assert r.fit is not None
+        fitted.append(replace(r, coherence=curve_coherence(prep, r.picks, r.fit)))
     # The strongest stands for any others that landed on the same target.
     fitted.sort(key=lambda r: -r.candidate.amplitude)
     out: list[Reflector] = []
@@ -139,3 +141,18 @@ def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: f
         if not any(o.fit is not None and _same_target(r.fit, o.fit) for o in out):
             out.append(r)
     return tuple(out)
+
+
+def curve_coherence(prep: PreparedBScan, picks: Picks, fit: CylinderFit) -> float:
+    """Semblance of the traces along the fitted curve, over the picked columns, in a ±quarter-period window."""
+    if len(picks.x_m) < 2:
+        return 0.0
+    cols = np.round((picks.x_m - prep.x_m[0]) / prep.dx_m).astype(np.intp)
+    times = cylinder_time(prep.x_m[cols], fit.x0_m, fit.depth_m, fit.radius_m, fit.v, prep.antenna_height_m,
+                          prep.tx_rx_offset_m)
+    half = max(1, round(0.25 * prep.period_ns / prep.dt_ns))
+    s = np.rint((times + prep.t0_ns) / prep.dt_ns).astype(np.intp)[:, None] + np.arange(-half, half + 1)
+    ns = prep.data.shape[1]
+    vals = np.where((s >= 0) & (s < ns), prep.data[cols[:, None], np.clip(s, 0, ns - 1)], 0.0)
+    energy = float(np.sum(vals * vals))
+    return float(np.sum(vals.sum(axis=0) ** 2) / (len(cols) * energy)) if energy > 0 else 0.0
