@@ -19,7 +19,7 @@ from gprbot.gpr.chain.prepare import PreparedBScan
 
 SNR_MIN = 6.0  # envelope over the noise's standard deviation
 DYNAMIC_RANGE = 0.01  # events weaker than this fraction of the strongest are numerical dust or ringing
-MAX_CANDIDATES = 40
+MAX_CANDIDATES = 24
 APEX_TEST_M = 0.03  # neighbours this far either side must see the event no earlier
 APEX_EARLIER_PERIODS = 0.05
 

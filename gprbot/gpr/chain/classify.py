@@ -122,7 +122,7 @@ def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
         multiples = gaps / base
         regular = bool(np.all(np.abs(multiples - np.round(multiples)) <= ROW_SPACING_TOLERANCE)
                        and np.all(np.round(multiples) >= 1) and np.max(multiples) <= 3.5)
-        thin = all(fits[j].radius_m <= BAR_MAX_RADIUS_M for j in row)
+        thin = all(fits[j].radius_m - fits[j].sigma_radius_m <= BAR_MAX_RADIUS_M for j in row)  # or not measurable
         if regular and (len(row) >= ROW_ANY_RADIUS_BARS or thin):
             bars.update(row)
     return bars

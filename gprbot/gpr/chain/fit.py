@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.geometry import cylinder_time_gradient
 from gprbot.gpr.chain.picks import Picks
 from gprbot.gpr.chain.prepare import PreparedBScan
 
@@ -29,8 +29,7 @@ V_BOUNDS = (0.035, 0.29)
 MIN_PICKS = 5
 PICK_STD_PERIODS = 0.03  # floor of a pick's timing error, in periods
 ROBUST_SCALE = 2.0  # soft-L1 scale, in pick standard deviations
-ITERATIONS = 25
-_STEP = np.array([1e-4, 1e-4, 1e-4, 1e-4])  # finite-difference steps (m, m, m, m/ns)
+ITERATIONS = 20
 
 
 @dataclass(frozen=True)
@@ -93,45 +92,41 @@ def fit_cylinders(
     hi = np.stack([x.max(axis=1) + 0.05, np.full(len(sel), 5.0), np.full(len(sel), R_MAX_M)]
                   + ([np.full(len(sel), V_BOUNDS[1])] if free_velocity else []), axis=1)
 
-    def residual(q: FloatArray) -> FloatArray:
+    def residual_and_jacobian(q: FloatArray) -> tuple[FloatArray, FloatArray]:
         vel = q[:, 3:4] if free_velocity else v0[:, None]
-        model = cylinder_time(x, q[:, 0:1], q[:, 1:2] + q[:, 2:3], q[:, 2:3], vel, h, off)
-        return np.where(mask, (model - t) / sigma_t, 0.0)
-
-    def jacobian(q: FloatArray, r: FloatArray) -> FloatArray:
-        cols = []
-        for k in range(n_par):
-            dq = q.copy()
-            step = _STEP[k] if q[0, k] + _STEP[k] <= hi[0, k] else -_STEP[k]
-            dq[:, k] += step
-            cols.append((residual(dq) - r) / step)
-        return np.stack(cols, axis=-1)  # (batch, n, n_par)
+        zc = q[:, 1:2] + q[:, 2:3]
+        model, g_x0, g_zc, g_r, g_v = cylinder_time_gradient(x, q[:, 0:1], zc, q[:, 2:3], vel, h, off)
+        cols = [g_x0, g_zc, g_r + g_zc] + ([g_v] if free_velocity else [])
+        jac = np.stack([np.where(mask, g / sigma_t, 0.0) for g in cols], axis=-1)
+        return np.where(mask, (model - t) / sigma_t, 0.0), jac
 
     def cost(r: FloatArray) -> FloatArray:
         return np.sum(2.0 * ROBUST_SCALE**2 * (np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2) - 1.0), axis=1)
 
     lam = np.full(len(sel), 1e-2)
-    r = residual(p)
+    r, J = residual_and_jacobian(p)
     c = cost(r)
     for _ in range(ITERATIONS):
-        J = jacobian(p, r)
         w = 1.0 / np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2)  # soft-L1 as iteratively reweighted least squares
         JtW = np.swapaxes(J * w[..., None], 1, 2)
         A = JtW @ J
         g = np.einsum("bpn,bn->bp", JtW, r)
         diag = np.einsum("bpp->bp", A) + 1e-12
-        step = -np.linalg.solve(A + lam[:, None, None] * np.einsum("bp,pq->bpq", diag, np.eye(n_par)), g[..., None])[..., 0]
+        damped = A + lam[:, None, None] * np.einsum("bp,pq->bpq", diag, np.eye(n_par))
+        step = -np.linalg.solve(damped, g[..., None])[..., 0]
         trial = np.clip(p + step, lo, hi)
-        r_trial = residual(trial)
+        r_trial, J_trial = residual_and_jacobian(trial)
         c_trial = cost(r_trial)
         better = c_trial < c
         p = np.where(better[:, None], trial, p)
         r = np.where(better[:, None], r_trial, r)
+        J = np.where(better[:, None, None], J_trial, J)
+        gain = np.where(better, (c - c_trial) / np.maximum(c, 1e-12), 0.0)
         c = np.where(better, c_trial, c)
         lam = np.where(better, lam * 0.3, lam * 10.0)
-        if np.all(np.abs(step) < 1e-6) or np.all(lam > 1e8):
+        # Done when no member still improves by more than a part in 10⁴ (or all gave up).
+        if np.all((better & (gain < 1e-4)) | (lam > 1e6)):
             break
-    J = jacobian(p, r)
     for b, i in enumerate(usable):
         m = mask[b]
         jb, rb = J[b][m], r[b][m]

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from gprbot.gpr.traveltime import C_M_PER_NS
 
 FloatArray = NDArray[np.float64]
-_NEWTON_STEPS = 4
+_NEWTON_STEPS = 3
 
 
 def leg_time(height: float, horiz: FloatArray, depth: FloatArray, v: FloatArray | float) -> FloatArray:
@@ -56,3 +56,56 @@ def cylinder_time(
     shrink = 1.0 - radius / dist
     px, pz = ax * shrink, centre_depth * shrink  # the point, from under the midpoint, and its depth
     return np.asarray(leg_time(height, px - 0.5 * offset, pz, v) + leg_time(height, px + 0.5 * offset, pz, v))
+
+
+def _leg_with_gradient(
+    height: float, horiz: FloatArray, depth: FloatArray, v: FloatArray | float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """One leg's time and its derivatives by the signed horizontal distance, the depth and the velocity.
+
+    Fermat: the time is stationary in the bending point, so the derivatives are those of the ground
+    segment alone (envelope theorem).
+    """
+    c = C_M_PER_NS
+    d = np.maximum(np.asarray(depth, dtype=np.float64), 1e-6)
+    signed = np.asarray(horiz, dtype=np.float64)
+    D = np.abs(signed)
+    a = np.zeros_like(D)
+    if height > 1e-6:
+        h = height
+        a = D * h * c / (v * d + h * c)
+        for _ in range(_NEWTON_STEPS):
+            ra = np.sqrt(h * h + a * a)
+            rb = np.sqrt(d * d + (D - a) ** 2)
+            g = a / (c * ra) - (D - a) / (v * rb)
+            gp = h * h / (c * ra**3) + d * d / (v * rb**3)
+            a = np.clip(a - g / gp, 0.0, D)
+    rb = np.sqrt(d * d + (D - a) ** 2)
+    t = np.sqrt(max(height, 0.0) ** 2 + a * a) / c + rb / v
+    return t, np.sign(signed) * (D - a) / (v * rb), d / (v * rb), -rb / (np.asarray(v) ** 2)
+
+
+def cylinder_time_gradient(
+    x_m: FloatArray, x0: FloatArray | float, centre_depth: FloatArray | float, radius: FloatArray | float,
+    v: FloatArray | float, height: float, offset: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """`cylinder_time` and its derivatives by x0, the centre depth, the radius (centre held) and v."""
+    ax = np.asarray(x_m, dtype=np.float64) - x0
+    zc = np.asarray(centre_depth, dtype=np.float64)
+    R = np.asarray(radius, dtype=np.float64)
+    dist = np.maximum(np.hypot(ax, zc), 1e-9)
+    shrink = 1.0 - R / dist
+    px, pz = ax * shrink, zc * shrink
+    k = R / dist**3
+    dpx_dax, dpx_dzc, dpx_dR = 1.0 - k * zc * zc, k * ax * zc, -ax / dist
+    dpz_dax, dpz_dzc, dpz_dR = k * zc * ax, 1.0 - k * ax * ax, -zc / dist
+    total = np.zeros(np.broadcast_shapes(ax.shape, np.shape(v)))
+    g_x0, g_zc, g_R, g_v = (np.zeros_like(total) for _ in range(4))
+    for sign in (-0.5, 0.5):
+        t, dD, dd, dv = _leg_with_gradient(height, px + sign * offset, pz, v)
+        total = total + t
+        g_x0 = g_x0 - (dD * dpx_dax + dd * dpz_dax)
+        g_zc = g_zc + dD * dpx_dzc + dd * dpz_dzc
+        g_R = g_R + dD * dpx_dR + dd * dpz_dR
+        g_v = g_v + dv
+    return total, g_x0, g_zc, g_R, g_v

@@ -2,7 +2,7 @@
 
 A pipe or bar of radius R with its centre at depth zc is timed as a point diffractor at zc minus 2R/v
 (exact at zero offset and height; within a few percent of a period for the antenna geometries of
-ground-coupled antennas). Travel times are those of `geometry.cylinder_time` (antenna height, Tx–Rx offset in line). The
+ground-coupled antennas). Travel times are straight rays from the antennas' footprints plus the air gap: a first curve only. The
 coherence is the semblance of the traces along the curve in a window of one period around it.
 """
 
@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.traveltime import C_M_PER_NS
 
 FloatArray = NDArray[np.float64]
 
@@ -38,10 +39,12 @@ def travel_table(prep: PreparedBScan, velocities: FloatArray, z_max_m: float, ma
     stride = max(1, int(np.ceil(max_lag_traces / MAX_LAGS)))
     lag_idx = np.arange(-max_lag_traces, max_lag_traces + 1, stride)
     lags = lag_idx * prep.dx_m
-    z = np.linspace(0.002, max(z_max_m, 0.02), 160)
+    z = np.linspace(0.002, max(z_max_m, 0.02), 120)
+    # A first guess only (the picks follow the data, the fits use the refracted model): straight rays
+    # from the antennas' footprints, which scale as 1/v, plus the air gap down and up.
+    unit = cylinder_time(lags[:, None], 0.0, z[None, :], 0.0, 1.0, 0.0, prep.tx_rx_offset_m)
     v = np.asarray(velocities, dtype=np.float64)[:, None, None]
-    t = cylinder_time(lags[None, :, None], 0.0, z[None, None, :], 0.0, v, prep.antenna_height_m,
-                      prep.tx_rx_offset_m)
+    t = unit[None, :, :] / v + 2.0 * prep.antenna_height_m / C_M_PER_NS
     return TravelTable(np.asarray(velocities, dtype=np.float64), lag_idx.astype(np.float64), z, t)
 
 
