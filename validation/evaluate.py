@@ -50,8 +50,9 @@ def summary(rows: Sequence[Row]) -> dict[str, str]:
     """Aggregate figures of a set of rows (one method, one mode, one group)."""
     s = [r.score for r in rows]
     pipes = sum(x.pipes for x in s)
-    v_err = [abs(r.outcome.velocity / r.case.velocity - 1.0) for r in rows
-             if r.mode == "estimated" and r.case.velocity and r.outcome.velocity == r.outcome.velocity]
+    # A velocity that was not estimated (a fallback) counts as a miss, on scenes that have targets.
+    v_err = [abs(r.outcome.velocity / r.case.velocity - 1.0) if r.outcome.velocity_estimated else float("inf")
+             for r in rows if r.mode == "estimated" and r.case.velocity and r.case.targets]
     v_ok = sum(1 for e in v_err if e <= 0.05)
     times = [r.outcome.seconds for r in rows]
     return {
@@ -63,6 +64,7 @@ def summary(rows: Sequence[Row]) -> dict[str, str]:
         "rebars found": _pct(sum(x.rebars_found for x in s), sum(x.rebars for x in s)),
         "v within 5 %": _pct(v_ok, len(v_err)) if v_err else "–",
         "median |v err|": f"{100 * statistics.median(v_err):.1f} %" if v_err else "–",
+        "v not estimated": str(sum(1 for e in v_err if e == float("inf"))),
         "median s / B-scan": f"{statistics.median(times):.3f}" if times else "–",
     }
 
@@ -84,6 +86,8 @@ def scene_row(row: Row) -> str:
     s = row.score
     v = row.outcome.velocity
     err = f"{100 * (v / row.case.velocity - 1):+.1f} %" if row.case.velocity and v == v else "–"
+    if row.mode == "estimated" and not row.outcome.velocity_estimated:
+        err = "not estimated"
     return (f"| {row.case.name} | {row.case.note} | {row.method} | {row.mode} | {s.pipes_within}/{s.pipes} | "
             f"{s.pipes_within_fine}/{s.pipes} | {s.radius_ok}/{s.pipes} | {s.false_pipes} | "
             f"{s.rebars_found}/{s.rebars} | {err} | {row.outcome.seconds:.3f} |")

@@ -20,7 +20,7 @@ from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
-from gprbot.gpr.chain.velocity import VelocityEstimate, combine_velocities
+from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
 from gprbot.gpr.migration import depth_axis, kirchhoff_migrate
 
 FloatArray = NDArray[np.float64]
@@ -89,7 +89,7 @@ def interpret(
     if velocity_m_per_ns is not None:
         v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
     else:
-        est: VelocityEstimate | None = combine_velocities([r.free_fit for r in reflectors])
+        est: VelocityEstimate | None = estimate_velocity(prep, reflectors)
         if est is not None:
             v, sigma, source, how = est.v, est.sigma, "estimated", est.method
         else:

@@ -1,23 +1,38 @@
 """Stage 3: the wave velocity from many diffractions at once, with its uncertainty and how it was found.
 
-Each hyperbola's picks were fitted with the velocity free (`fit.fit_cylinder`); its estimate comes with
-a variance that is wide when its radius and velocity trade off (a large pipe seen over a small
-aperture) and narrow for a thin bar. The survey velocity is their inverse-variance mean after the
-estimates more than three (combined) sigmas from the weighted median are dropped; its uncertainty is the
-larger of the formal error and the scatter of the estimates that were kept.
+On one hyperbola radius and velocity trade off (a larger pipe at a lower velocity has nearly the same
+curve over the usable aperture), so fitting curves to picks gives a poor velocity: on the FDTD dev half
+free fits were off by 8-70 %. Migration does not share that trade-off: at the right velocity a
+diffraction, a bar or a pipe's top collapses into its reflector — a point or a short arc — and the
+migrated amplitude peaks there. So each hyperbola is migrated locally (a window around its apex) at a
+ladder of trial velocities, coarse then fine; the velocity where its peak amplitude is highest is its
+vote. The line's velocity is the weighted median of the votes (weights: how sharply each peaks and how
+strong it is); its uncertainty the weighted spread of the votes over √n, never below a quarter step.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
-from gprbot.gpr.chain.fit import V_BOUNDS, CylinderFit
+from gprbot.gpr.chain.prepare import PreparedBScan
+from gprbot.gpr.chain.reflectors import Reflector
+from gprbot.gpr.migration import kirchhoff_migrate
 
-MAX_RELATIVE_SIGMA = 0.25  # a hyperbola that says less than ±25 % about v is not asked
-MIN_SIGMA_RELATIVE = 0.005  # no velocity is known better than ±0.5 % from picks on one line
+FloatArray = NDArray[np.float64]
+
+V_MIN, V_MAX = 0.05, 0.25  # m/ns: wet clay … dry sand; concrete is 0.08-0.15
+COARSE_STEPS = 13
+FINE_STEPS = 5
+APERTURE_DEG = 50.0
+WINDOW_X_M = 0.05
+MAX_VOTERS = 8
+MIN_FLANK = 3
+MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
 
 
 @dataclass(frozen=True)
@@ -30,30 +45,64 @@ class VelocityEstimate:
     method: str
 
 
-def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
-    """The value below which half the total weight lies."""
-    order = np.argsort(values)
-    cum = np.cumsum(weights[order])
-    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
+def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatArray) -> FloatArray:
+    """Peak migrated amplitude near a hyperbola's apex at each trial velocity."""
+    out = np.zeros(len(velocities))
+    half = max(2, round(WINDOW_X_M / prep.dx_m))
+    for k, v in enumerate(velocities):
+        top = 0.5 * float(v) * apex_t_ns
+        z = np.arange(max(0.002, top - 0.03), top + 0.04, 0.002)
+        reach = math.ceil((top + 0.04) * math.tan(math.radians(APERTURE_DEG)) / prep.dx_m) + half
+        lo, hi = max(0, column - reach), min(prep.data.shape[0], column + reach + 1)
+        image = kirchhoff_migrate(prep.data[lo:hi], prep.x_m[lo:hi], prep.dt_ns, prep.t0_ns, z, float(v),
+                                  antenna_height_m=prep.antenna_height_m, tx_rx_offset_m=prep.tx_rx_offset_m,
+                                  aperture_deg=APERTURE_DEG)
+        c = column - lo
+        out[k] = float(np.abs(image[:, max(0, c - half) : c + half + 1]).max())
+    return out
 
 
-def combine_velocities(fits: Sequence[CylinderFit]) -> VelocityEstimate | None:
-    """The survey velocity from free-velocity cylinder fits; None when no fit constrains it."""
-    usable = [f for f in fits if f.sigma_v > 0 and f.sigma_v < MAX_RELATIVE_SIGMA * f.v
-              and V_BOUNDS[0] * 1.02 < f.v < V_BOUNDS[1] * 0.98]
-    if not usable:
+def _peak(curve: FloatArray, velocities: FloatArray) -> float | None:
+    """Sub-step velocity of the curve's interior maximum (log-spaced ladder); None at an end."""
+    i = int(np.argmax(curve))
+    if i in (0, len(curve) - 1):
         return None
-    v = np.array([f.v for f in usable])
-    s = np.maximum(np.array([f.sigma_v for f in usable]), MIN_SIGMA_RELATIVE * v)
-    w = 1.0 / s**2
-    med = _weighted_median(v, w)
-    spread = 1.4826 * _weighted_median(np.abs(v - med), w) if len(v) > 2 else 0.0
-    keep = np.abs(v - med) <= 3.0 * np.sqrt(s**2 + spread**2)
-    v, s, w = v[keep], s[keep], w[keep]
-    mean = float(np.sum(w * v) / np.sum(w))
-    formal = float(1.0 / np.sqrt(np.sum(w)))
-    scatter = float(np.sqrt(np.sum(w * (v - mean) ** 2) / np.sum(w) / max(len(v) - 1, 1))) if len(v) > 1 else 0.0
-    n = len(v)
-    how = (f"cylinder fits of {n} diffraction hyperbolas (inverse-variance mean)" if n > 1
-           else "the cylinder fit of one diffraction hyperbola (weak: radius and velocity trade off)")
-    return VelocityEstimate(mean, max(formal, scatter), n, how)
+    a, b, c = curve[i - 1], curve[i], curve[i + 1]
+    denom = a - 2.0 * b + c
+    frac = 0.0 if denom >= 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
+    lv = np.log(velocities)
+    return float(np.exp(lv[i] + frac * (lv[1] - lv[0])))
+
+
+def vote(prep: PreparedBScan, r: Reflector) -> tuple[float, float] | None:
+    """One hyperbola's velocity and weight, from its focus curve (coarse ladder, then fine)."""
+    coarse = np.geomspace(V_MIN, V_MAX, COARSE_STEPS)
+    curve = focus(prep, r.candidate.column, r.candidate.t_ns, coarse)
+    best = _peak(curve, coarse)
+    contrast = float(curve.max() / max(min(curve[0], curve[-1]), 1e-30))
+    if best is None or contrast < MIN_CONTRAST:
+        return None
+    step = float(np.log(coarse[1] / coarse[0]))
+    fine = best * np.exp(np.linspace(-step, step, FINE_STEPS))
+    v = _peak(focus(prep, r.candidate.column, r.candidate.t_ns, fine), fine) or best
+    return v, math.log(contrast) * math.log1p(r.candidate.snr)
+
+
+def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> VelocityEstimate | None:
+    """The velocity the hyperbolas' migration focus agrees on; None when no hyperbola focuses."""
+    two_sided = [r for r in reflectors if min(r.picks.left, r.picks.right) >= MIN_FLANK]
+    two_sided.sort(key=lambda r: -r.candidate.snr)
+    votes = [v for v in (vote(prep, r) for r in two_sided[:MAX_VOTERS]) if v is not None]
+    if not votes:
+        return None
+    v, w = np.array([x[0] for x in votes]), np.array([x[1] for x in votes])
+    order = np.argsort(v)
+    cum = np.cumsum(w[order])
+    median = float(v[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    spread = float(np.sqrt(np.sum(w * np.log(v / median) ** 2) / np.sum(w)))
+    step = math.log(V_MAX / V_MIN) / (COARSE_STEPS - 1) / (FINE_STEPS - 1) * 2.0
+    n = len(votes)
+    sigma_rel = max(spread / math.sqrt(n), 0.25 * step) if n > 1 else max(spread, step)
+    how = (f"migration focus of {n} diffraction hyperbolas (weighted median)" if n > 1
+           else "the migration focus of one diffraction hyperbola")
+    return VelocityEstimate(median, median * sigma_rel, n, how)
