@@ -30,6 +30,7 @@ MIN_PICKS = 5
 PICK_STD_PERIODS = 0.03  # floor of a pick's timing error, in periods
 ROBUST_SCALE = 2.0  # soft-L1 scale, in pick standard deviations
 ITERATIONS = 20
+START_RADII_M = np.array([0.01])
 
 
 @dataclass(frozen=True)
@@ -79,18 +80,23 @@ def fit_cylinders(
     sigma_t = max(PICK_STD_PERIODS * prep.period_ns, 0.5 * prep.dt_ns)
     h, off = prep.antenna_height_m, prep.tx_rx_offset_m
     n_par = 4 if free_velocity else 3
+    # Several starting radii per hyperbola, all in one batch: a thin bar and a large pipe are separate
+    # minima of the misfit, and a start near the wrong one stays there.
+    n_sel, n_starts = len(sel), len(START_RADII_M)
+    x, t, mask = np.tile(x, (n_starts, 1)), np.tile(t, (n_starts, 1)), np.tile(mask, (n_starts, 1))
+    v0 = np.tile(v0, n_starts)
     apex = np.where(mask, t, np.inf).argmin(axis=1)
-    rows = np.arange(len(sel))
-    p = np.zeros((len(sel), n_par))
+    rows = np.arange(len(x))
+    p = np.zeros((len(x), n_par))
     p[:, 0] = x[rows, apex]
     p[:, 1] = np.maximum(0.003, 0.5 * v0 * t[rows, apex])
-    p[:, 2] = 0.01
+    p[:, 2] = np.repeat(START_RADII_M, n_sel)
     if free_velocity:
         p[:, 3] = v0
-    lo = np.stack([x.min(axis=1) - 0.05, np.zeros(len(sel)), np.zeros(len(sel))]
-                  + ([np.full(len(sel), V_BOUNDS[0])] if free_velocity else []), axis=1)
-    hi = np.stack([x.max(axis=1) + 0.05, np.full(len(sel), 5.0), np.full(len(sel), R_MAX_M)]
-                  + ([np.full(len(sel), V_BOUNDS[1])] if free_velocity else []), axis=1)
+    lo = np.stack([x.min(axis=1) - 0.05, np.zeros(len(x)), np.zeros(len(x))]
+                  + ([np.full(len(x), V_BOUNDS[0])] if free_velocity else []), axis=1)
+    hi = np.stack([x.max(axis=1) + 0.05, np.full(len(x), 5.0), np.full(len(x), R_MAX_M)]
+                  + ([np.full(len(x), V_BOUNDS[1])] if free_velocity else []), axis=1)
 
     def residual_and_jacobian(q: FloatArray) -> tuple[FloatArray, FloatArray]:
         vel = q[:, 3:4] if free_velocity else v0[:, None]
@@ -103,7 +109,7 @@ def fit_cylinders(
     def cost(r: FloatArray) -> FloatArray:
         return np.sum(2.0 * ROBUST_SCALE**2 * (np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2) - 1.0), axis=1)
 
-    lam = np.full(len(sel), 1e-2)
+    lam = np.full(len(x), 1e-2)
     r, J = residual_and_jacobian(p)
     c = cost(r)
     for _ in range(ITERATIONS):
@@ -127,7 +133,9 @@ def fit_cylinders(
         # Done when no member still improves by more than a part in 10⁴ (or all gave up).
         if np.all((better & (gain < 1e-4)) | (lam > 1e6)):
             break
-    for b, i in enumerate(usable):
+    best = c.reshape(n_starts, n_sel).argmin(axis=0) * n_sel + np.arange(n_sel)
+    for k, i in enumerate(usable):
+        b = int(best[k])
         m = mask[b]
         jb, rb = J[b][m], r[b][m]
         dof = max(1, int(m.sum()) - n_par)

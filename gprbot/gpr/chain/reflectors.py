@@ -28,8 +28,8 @@ from gprbot.gpr.chain.semblance import (
     travel_table,
 )
 
-TRIAL_VELOCITIES = np.geomspace(0.04, 0.25, 40)
-TRIAL_RADII = np.array([0.0, 0.006, 0.012, 0.025, 0.04, 0.06, 0.09])
+TRIAL_VELOCITIES = np.geomspace(0.04, 0.25, 24)
+TRIAL_RADII = np.array([0.0, 0.012, 0.03, 0.06])
 SAME_TARGET_M = 0.03
 
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.traveltime import C_M_PER_NS
 
 FloatArray = NDArray[np.float64]
