@@ -27,7 +27,7 @@ from gprbot.gpr.chain.reflectors import Reflector
 MIN_FLANK_PICKS = 3
 MAX_RMS_PERIODS = 0.15
 MIN_COHERENCE = 0.25
-VELOCITY_TOLERANCE = 0.25  # relative, on top of the fit's own 3 sigma
+VELOCITY_FACTOR = 2.0  # a hyperbola's own velocity within this factor of the line's (plus 3 sigma)
 ROW_MIN_BARS = 3
 ROW_DEPTH_TOLERANCE_M = 0.015
 ROW_DEPTH_RELATIVE = 0.35
@@ -72,8 +72,9 @@ def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
         return False  # one flank only, and straight: a dipping event or a slab edge, not a diffraction
     if v is None:
         return True
+    # On one hyperbola radius and velocity trade off, so its own velocity only rules out the absurd.
     free = r.free_fit
-    return abs(free.v - v) <= 3.0 * free.sigma_v + VELOCITY_TOLERANCE * v
+    return abs(math.log(free.v / v)) <= math.log(VELOCITY_FACTOR) + 3.0 * free.sigma_v / v
 
 
 def _curved(x: np.ndarray, t: np.ndarray, rms_ns: float) -> bool:

@@ -17,7 +17,7 @@ from gprbot.gpr.chain.prepare import PreparedBScan
 
 FloatArray = NDArray[np.float64]
 
-PICK_APERTURE_DEG = 60.0  # FDTD dev half: beyond ~45° the flanks come early against the ray model
+PICK_APERTURE_DEG = 60.0  # beyond, picks are mostly a neighbour's flank; (45° changed little on the FDTD dev half)
 MIN_PICK_SNR = 3.0
 MIN_PICK_RATIO = 0.06  # of the apex amplitude: weaker picks are another event or noise
 MAX_MISSES = 2
