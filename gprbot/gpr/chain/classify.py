@@ -25,6 +25,7 @@ from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.reflectors import Reflector
 
 MIN_FLANK_PICKS = 3
+FLANK_BALANCE = 0.25  # the shorter flank at least this fraction of the longer (else: one-sided)
 MAX_RMS_PERIODS = 0.15
 MIN_COHERENCE = 0.25
 VELOCITY_FACTOR = 2.0  # a hyperbola's own velocity within this factor of the line's (plus 3 sigma)
@@ -60,7 +61,7 @@ def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
     """Whether a reflector's picks make a diffraction hyperbola consistent with the line's velocity."""
     p, f = r.picks, r.fit or r.free_fit
     edge = min(r.candidate.column, prep.data.shape[0] - 1 - r.candidate.column) <= 2
-    two_sided = min(p.left, p.right) >= MIN_FLANK_PICKS
+    two_sided = min(p.left, p.right) >= max(MIN_FLANK_PICKS, FLANK_BALANCE * max(p.left, p.right))
     flanks = two_sided or (edge and max(p.left, p.right) >= 2 * MIN_FLANK_PICKS)
     if not flanks or f.rms_ns > MAX_RMS_PERIODS * prep.period_ns or r.coherence < MIN_COHERENCE:
         return False

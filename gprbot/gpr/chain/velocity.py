@@ -90,7 +90,8 @@ def vote(prep: PreparedBScan, r: Reflector) -> tuple[float, float] | None:
 
 def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> VelocityEstimate | None:
     """The velocity the hyperbolas' migration focus agrees on; None when no hyperbola focuses."""
-    two_sided = [r for r in reflectors if min(r.picks.left, r.picks.right) >= MIN_FLANK]
+    two_sided = [r for r in reflectors
+                 if min(r.picks.left, r.picks.right) >= max(MIN_FLANK, 0.25 * max(r.picks.left, r.picks.right))]
     two_sided.sort(key=lambda r: -r.candidate.snr)
     votes = [v for v in (vote(prep, r) for r in two_sided[:MAX_VOTERS]) if v is not None]
     if not votes:
