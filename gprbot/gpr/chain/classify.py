@@ -27,6 +27,8 @@ from gprbot.gpr.chain.reflectors import Reflector
 MIN_FLANK_PICKS = 3
 FLANK_BALANCE = 0.25  # the shorter flank at least this fraction of the longer (else: one-sided)
 MAX_RMS_PERIODS = 0.15
+MAX_RMS_COHERENT_PERIODS = 0.25
+COHERENT = 0.6
 MIN_COHERENCE = 0.25
 VELOCITY_FACTOR = 2.0  # a hyperbola's own velocity within this factor of the line's (plus 3 sigma)
 ROW_MIN_BARS = 3
@@ -63,7 +65,12 @@ def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
     edge = min(r.candidate.column, prep.data.shape[0] - 1 - r.candidate.column) <= 2
     two_sided = min(p.left, p.right) >= max(MIN_FLANK_PICKS, FLANK_BALANCE * max(p.left, p.right))
     flanks = two_sided or (edge and max(p.left, p.right) >= 2 * MIN_FLANK_PICKS)
-    if not flanks or f.rms_ns > MAX_RMS_PERIODS * prep.period_ns or r.coherence < MIN_COHERENCE:
+    if not flanks or r.coherence < MIN_COHERENCE:
+        return False
+    # A loose fit passes only when the traces are coherent along it (a weak shallow bar under the
+    # direct wave's tail, or crossed by a neighbour's flank, picks poorly but stacks well).
+    limit = MAX_RMS_PERIODS if r.coherence < COHERENT else MAX_RMS_COHERENT_PERIODS
+    if f.rms_ns > limit * prep.period_ns:
         return False
     if f.radius_m >= 0.95 * R_MAX_M:
         return False  # a curve flatter than any pipe: a layer's bump, a multiple, a shadow

@@ -1,0 +1,129 @@
+"""The interpretation chain stage by stage, on analytic data (synthetic_bscan: refracted times, Ricker, no sim)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from gprbot.config import GprConfig
+from gprbot.gpr.bscan import BScan, SyntheticTarget, synthetic_bscan
+from gprbot.gpr.chain.candidates import apex_candidates
+from gprbot.gpr.chain.classify import _rebar_rows
+from gprbot.gpr.chain.fit import CylinderFit, fit_cylinders
+from gprbot.gpr.chain.geometry import cylinder_time, cylinder_time_gradient
+from gprbot.gpr.chain.picks import Picks
+from gprbot.gpr.chain.prepare import decimation_factor, noise_level, prepare
+from gprbot.gpr.chain.run import interpret
+from gprbot.gpr.line_model import cylinder_times
+
+V = 0.1
+GPR = replace(GprConfig(), centre_frequency_mhz=900.0, antenna_height_m=0.02, tx_rx_offset_m=0.06)
+
+
+def _line(targets: list[SyntheticTarget], *, noise: float = 0.01, n: int = 230) -> BScan:
+    b = synthetic_bscan(targets, v_m_per_ns=V, centre_frequency_mhz=900.0, n_traces=n, spacing_m=0.01, samples=512,
+                        dt_ns=0.025, t0_ns=1.0, antenna_height_m=GPR.antenna_height_m,
+                        tx_rx_offset_m=GPR.tx_rx_offset_m, noise=noise, direct_wave=3.0)
+    return replace(b, t0_ns=math.nan)  # as a file gives it: time zero unknown
+
+
+@pytest.mark.parametrize(("height", "offset"), [(0.0, 0.05), (0.03, 0.08), (0.05, 0.1)])
+def test_cylinder_time_matches_the_exact_refracted_time(height: float, offset: float) -> None:
+    x = np.linspace(-0.5, 0.5, 41)
+    exact = cylinder_times(x, 0.0, 0.2, 0.05, V, replace(GprConfig(), antenna_height_m=height, tx_rx_offset_m=offset))
+    if height == 0.0:
+        # A source in the surface: straight rays (the FDTD scenes at height 0 fit these, not head waves).
+        px = x * (1 - 0.05 / np.hypot(x, 0.2))
+        pz = 0.2 * (1 - 0.05 / np.hypot(x, 0.2))
+        exact = (np.hypot(px - offset / 2, pz) + np.hypot(px + offset / 2, pz)) / V
+    assert np.max(np.abs(cylinder_time(x, 0.0, 0.2, 0.05, V, height, offset) - exact)) < 1e-3
+
+
+@pytest.mark.parametrize("height", [0.0, 0.03])
+def test_cylinder_time_gradient_matches_finite_differences(height: float) -> None:
+    x = np.linspace(-0.3, 0.3, 13)
+    args = [0.02, 0.12, 0.03, 0.11]
+    t, *grads = cylinder_time_gradient(x, *args, height, 0.05)
+    assert np.allclose(t, cylinder_time(x, *args, height, 0.05))
+    for k, g in enumerate(grads):
+        hi, lo = list(args), list(args)
+        hi[k] += 1e-6
+        lo[k] -= 1e-6
+        numeric = (cylinder_time(x, *hi, height, 0.05) - cylinder_time(x, *lo, height, 0.05)) / 2e-6
+        assert np.max(np.abs(g - numeric)) < 0.01 * np.max(np.abs(numeric)) + 1e-6
+
+
+def test_prepare_finds_time_zero_and_frequency_from_the_data() -> None:
+    prep = prepare(_line([SyntheticTarget(1.0, 0.2, 0.02, 1.0)]), GPR)
+    assert prep.t0_method == "direct-wave envelope peak"
+    assert abs(prep.t0_ns - 1.0) < 0.05  # the synthetic's transmit instant
+    assert 700.0 < prep.frequency_mhz < 1300.0  # a 900 MHz Ricker's spectrum (dewowed) peaks near it
+
+
+def test_decimation_and_noise_level() -> None:
+    assert decimation_factor(0.005, 1000.0) == 12  # 200 samples a period → about 16
+    assert decimation_factor(0.06, 1000.0) == 1
+    rng = np.random.default_rng(0)
+    data = rng.normal(0.0, 1.0, (50, 400))
+    data[:, :300] += 50.0 * rng.normal(0.0, 1.0, (50, 300))  # signal fills most windows
+    assert 0.8 < noise_level(data) < 1.2
+
+
+def test_candidates_mark_the_apex_not_the_flanks() -> None:
+    prep = prepare(_line([SyntheticTarget(1.2, 0.25, 0.02, 1.0)]), GPR)
+    cands = apex_candidates(prep)
+    strongest = cands[0]
+    assert abs(prep.x_m[strongest.column] - 1.2) <= 0.02
+    # No candidate on the flanks of the one hyperbola (the others are its ringing, below the apex).
+    assert all(abs(prep.x_m[c.column] - 1.2) <= 0.05 for c in cands if c.t_ns < strongest.t_ns + 0.5)
+
+
+def test_batched_fit_recovers_cylinders_at_a_known_velocity() -> None:
+    prep = prepare(_line([SyntheticTarget(1.0, 0.2, 0.02, 1.0)]), GPR)
+    rng = np.random.default_rng(1)
+    picks = []
+    for x0, zc, r in [(0.6, 0.25, 0.04), (1.3, 0.15, 0.008)]:
+        x = np.arange(x0 - 0.15, x0 + 0.151, 0.01)
+        t = cylinder_time(x, x0, zc, r, V, GPR.antenna_height_m, GPR.tx_rx_offset_m) + rng.normal(0, 0.005, len(x))
+        picks.append(Picks(apex_candidates(prep)[0], x, t, np.ones(len(x)), 15, 15))
+    fits = fit_cylinders(prep, picks, V, free_velocity=False)
+    for f, (x0, zc, r) in zip(fits, [(0.6, 0.25, 0.04), (1.3, 0.15, 0.008)], strict=True):
+        assert f is not None
+        assert abs(f.x0_m - x0) < 0.003 and abs(f.depth_m - zc) < 0.01 and abs(f.radius_m - r) < 0.01
+
+
+def _fit(x0: float, top: float, radius: float = 0.006) -> CylinderFit:
+    return CylinderFit(x0, top, radius, V, 0.001, 0.001, 0.002, 0.0, 0.01, 20)
+
+
+def test_rebar_rows() -> None:
+    row = [_fit(0.1 + 0.2 * k + 0.01 * (-1) ** k, 0.05) for k in range(5) if k != 3]  # one bar missing
+    pipes = [_fit(0.45, 0.3, 0.05), _fit(0.8, 0.22, 0.04)]
+    assert _rebar_rows(row + pipes) == {0, 1, 2, 3}
+    irregular = [_fit(x, 0.05) for x in (0.1, 0.17, 0.5, 0.58)]
+    assert _rebar_rows(irregular) == set()
+    big_three = [_fit(0.1 + 0.2 * k, 0.05, 0.05) for k in range(3)]
+    assert _rebar_rows(big_three) == set()  # three wide reflectors in a row may be pipes
+
+
+def test_interpret_finds_pipes_and_a_rebar_row_at_a_given_velocity() -> None:
+    targets = [SyntheticTarget(0.55, 0.25, 0.03, 1.0), SyntheticTarget(1.45, 0.3, 0.05, 1.0)]
+    targets += [SyntheticTarget(0.1 + 0.3 * k, 0.07, 0.006, 0.5) for k in range(7)]
+    result = interpret(_line(targets), GPR, V)
+    pipes = [(d.x_m, d.depth_m) for d in result.pipes]
+    for x0, zc in [(0.55, 0.25), (1.45, 0.3)]:
+        assert any(abs(x - x0) < 0.02 and abs(z - zc) < 0.02 for x, z in pipes), (x0, pipes)
+    bars = [d.x_m for d in result.rebars]
+    assert sum(any(abs(b - (0.1 + 0.3 * k)) < 0.02 for b in bars) for k in range(7)) >= 5
+    assert result.velocity_source == "given"
+    assert result.section.mask.any() and len(result.section.rebars) == len(result.rebars)
+
+
+def test_interpret_without_hyperbolas_says_the_velocity_was_not_estimated() -> None:
+    result = interpret(_line([], noise=0.01), GPR)
+    assert result.detections == ()
+    assert result.velocity_source == "fallback"
+    assert any("velocity not estimated" in n for n in result.notes)
