@@ -107,7 +107,7 @@ def fit_cylinders(
         return np.where(mask, (model - t) / sigma_t, 0.0), jac
 
     def cost(r: FloatArray) -> FloatArray:
-        return np.sum(2.0 * ROBUST_SCALE**2 * (np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2) - 1.0), axis=1)
+        return np.asarray(np.sum(2.0 * ROBUST_SCALE**2 * (np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2) - 1.0), axis=1))
 
     lam = np.full(len(x), 1e-2)
     r, J = residual_and_jacobian(p)

@@ -1,7 +1,8 @@
 """Stage 4a: picks along one hyperbola — the reflection's time on every trace of its flanks.
 
 Tracking starts at the apex with the curve the semblance scan liked best, picks the envelope's peak
-near the predicted time on each trace outwards (the same definition as time zero's). A flank ends after two traces without a clear pick, or at the aperture.
+near the predicted time on each trace outwards (the same definition as time zero's). A flank ends after
+two traces without a clear pick, at an earlier event, or at the aperture.
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ the noise level from their robust spread. Order: uniform grid, dewow, direct wav
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 
@@ -113,7 +114,7 @@ def noise_level(data: FloatArray, blocks: int = 8) -> float:
         return float(1.4826 * np.median(np.abs(data - np.median(data))))
     edges = np.linspace(0, n, blocks + 1).astype(int)
     return float(min(1.4826 * np.median(np.abs(data[:, a:b] - np.median(data[:, a:b])))
-                     for a, b in zip(edges[:-1], edges[1:], strict=True)))
+                     for a, b in itertools.pairwise(edges)))
 
 
 def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:

@@ -53,7 +53,9 @@ def line_table(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> Trav
     return travel_table(prep, TRIAL_VELOCITIES, z_max, max(2, max_lag))
 
 
-def _first_curve(prep: PreparedBScan, table: TravelTable, cand: ApexCandidate) -> tuple[float, float, float, float] | None:
+def _first_curve(
+    prep: PreparedBScan, table: TravelTable, cand: ApexCandidate
+) -> tuple[float, float, float, float] | None:
     """(v, radius, centre depth, coherence) of the candidate's best semblance over the trial grid."""
     zc = centre_depths(table, cand.t_ns, TRIAL_RADII)
     samples = curve_samples(table, zc, TRIAL_RADII, prep.t0_ns, prep.dt_ns)
@@ -68,7 +70,8 @@ def _first_curve(prep: PreparedBScan, table: TravelTable, cand: ApexCandidate) -
 
 def _same_target(a: CylinderFit, b: CylinderFit) -> bool:
     """Whether two fits describe one target (their tops within a few centimetres)."""
-    return abs(a.x0_m - b.x0_m) <= SAME_TARGET_M + max(a.radius_m, b.radius_m) and abs(a.top_m - b.top_m) <= SAME_TARGET_M
+    near = abs(a.x0_m - b.x0_m) <= SAME_TARGET_M + max(a.radius_m, b.radius_m)
+    return near and abs(a.top_m - b.top_m) <= SAME_TARGET_M
 
 
 def _pick_all(
@@ -97,17 +100,16 @@ def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> 
     picks = _pick_all(prep, cands, curves, 0.5)
     fits = fit_cylinders(prep, picks, [s[0] for s in starts], free_velocity=True)
     # One reflector per target: the strongest candidate's fit stands for the others on the same hyperbola.
-    kept: list[int] = []
+    kept: list[tuple[int, CylinderFit]] = []
     for i, f in enumerate(fits):
-        if f is not None and not any(_same_target(f, fits[j]) for j in kept if fits[j] is not None):
-            kept.append(i)
-    curves = [(fits[i].v, fits[i].radius_m, fits[i].depth_m, fits[i].x0_m) for i in kept if fits[i] is not None]
-    again = _pick_all(prep, [cands[i] for i in kept], curves, 0.3)
+        if f is not None and not any(_same_target(f, g) for _, g in kept):
+            kept.append((i, f))
+    curves = [(f.v, f.radius_m, f.depth_m, f.x0_m) for _, f in kept]
+    again = _pick_all(prep, [cands[i] for i, _ in kept], curves, 0.3)
     refits = fit_cylinders(prep, again, [c[0] for c in curves], free_velocity=True)
     out = []
-    for k, i in enumerate(kept):
-        first_fit, refit = fits[i], refits[k]
-        assert first_fit is not None
+    for k, (i, first_fit) in enumerate(kept):
+        refit = refits[k]
         if refit is not None and len(again[k].x_m) >= 0.8 * len(picks[i].x_m):
             out.append(Reflector(cands[i], again[k], refit, starts[i][3]))
         else:
@@ -120,17 +122,17 @@ def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: f
     if not reflectors:
         return ()
     first = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
-    idx = [i for i, f in enumerate(first) if f is not None]
-    curves = [(v, first[i].radius_m, first[i].depth_m, first[i].x0_m) for i in idx]  # type: ignore[union-attr]
-    again = _pick_all(prep, [reflectors[i].candidate for i in idx], curves, 0.3)
+    done = [(r, f) for r, f in zip(reflectors, first, strict=True) if f is not None]
+    curves = [(v, f.radius_m, f.depth_m, f.x0_m) for _, f in done]
+    again = _pick_all(prep, [r.candidate for r, _ in done], curves, 0.3)
     refits = fit_cylinders(prep, again, v, free_velocity=False)
     fitted: list[Reflector] = []
-    for k, i in enumerate(idx):
-        r, refit = reflectors[i], refits[k]
+    for k, (r, f) in enumerate(done):
+        refit = refits[k]
         if refit is not None and len(again[k].x_m) >= 0.8 * len(r.picks.x_m):
             r = replace(r, picks=again[k], fit=refit)
         else:
-            r = replace(r, fit=first[i])
+            r = replace(r, fit=f)
         assert r.fit is not None
         fitted.append(replace(r, coherence=curve_coherence(prep, r.picks, r.fit)))
     # The strongest stands for any others that landed on the same target.

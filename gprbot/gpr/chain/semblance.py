@@ -1,9 +1,9 @@
-"""Coherence of a B-scan along cylinder travel-time curves: the measure the velocity and the fits rest on.
+"""First curves for the picks: the semblance of a B-scan along trial cylinder travel-time curves.
 
-A pipe or bar of radius R with its centre at depth zc is timed as a point diffractor at zc minus 2R/v
-(exact at zero offset and height; within a few percent of a period for the antenna geometries of
-ground-coupled antennas). Travel times are straight rays from the antennas' footprints plus the air gap: a first curve only. The
-coherence is the semblance of the traces along the curve in a window of one period around it.
+A pipe or bar of radius R with its centre at depth zc is timed as a point diffractor at zc minus 2R/v,
+with straight rays from the antennas' footprints plus the air gap: a first guess only (the picks follow
+the data, the fits use the refracted model). The coherence is the semblance of the traces along the
+curve in a window of half a period around it.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from gprbot.gpr.traveltime import C_M_PER_NS
 FloatArray = NDArray[np.float64]
 
 MAX_LAGS = 24  # traces used on each side of an apex (strided beyond): enough to see the curvature
-APERTURE_DEG = 50.0
-MIN_SUPPORT = 7  # traces a curve must cross for its semblance to count in full  # in-ground angle from vertical beyond which flanks are not used
+APERTURE_DEG = 50.0  # in-ground angle from vertical beyond which flanks are not used
+MIN_SUPPORT = 7  # traces a curve must cross for its semblance to count in full
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ def travel_table(prep: PreparedBScan, velocities: FloatArray, z_max_m: float, ma
     """Travel times for the trial velocities on the line's lags; straight rays scale as 1/v when height is 0."""
     stride = max(1, int(np.ceil(max_lag_traces / MAX_LAGS)))
     lag_idx = np.arange(-max_lag_traces, max_lag_traces + 1, stride)
-    lags = lag_idx * prep.dx_m
+    lags = np.asarray(lag_idx * prep.dx_m, dtype=np.float64)
     z = np.linspace(0.002, max(z_max_m, 0.02), 120)
     # A first guess only (the picks follow the data, the fits use the refracted model): straight rays
     # from the antennas' footprints, which scale as 1/v, plus the air gap down and up.
@@ -100,4 +100,5 @@ def aperture_mask(table: TravelTable, zc: FloatArray, dx_m: float, min_lags: int
     """Lags (..., nk) within the aperture angle of a centre at depth zc (always the nearest min_lags)."""
     reach = np.tan(np.radians(APERTURE_DEG)) * np.nan_to_num(zc, nan=0.0)[..., None]
     horiz = np.abs(table.lags_m) * dx_m
-    return np.asarray((horiz <= reach) | (np.abs(table.lags_m) <= min_lags * max(1.0, table.lags_m[1] - table.lags_m[0])))
+    nearest = np.abs(table.lags_m) <= min_lags * max(1.0, table.lags_m[1] - table.lags_m[0])
+    return np.asarray((horiz <= reach) | nearest)
