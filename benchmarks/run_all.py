@@ -9,6 +9,7 @@ import time
 BENCHMARKS = (
     "bench_forward",
     "bench_migration",
+    "bench_chain",
     "bench_parsers_gpr",
     "bench_parsers_motors",
     "bench_realsense",

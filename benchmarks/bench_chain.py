@@ -1,0 +1,99 @@
+"""Benchmark: the interpretation chain's time per 100-trace B-scan, velocity estimated and given, in-process.
+
+Run: .venv/bin/python -m benchmarks.bench_chain — medians over B-scans of 100 traces: analytic lines
+(three pipes and a rebar row, 900 MHz, 512 samples), 100-trace pieces of the committed FDTD scenes
+(padded by repetition where shorter), and of the real StructureScan line; the stage split of one run.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from benchmarks.machine import machine_description
+from gprbot.config import GprConfig
+from gprbot.gpr.bscan import BScan, SyntheticTarget, synthetic_bscan
+from gprbot.gpr.chain.candidates import apex_candidates
+from gprbot.gpr.chain.prepare import prepare
+from gprbot.gpr.chain.reflectors import fit_reflectors
+from gprbot.gpr.chain.run import interpret
+from gprbot.gpr.chain.velocity import estimate_velocity
+
+TRACES = 100
+
+
+def _analytic(seed: int) -> tuple[BScan, GprConfig]:
+    """A 100-trace line: two pipes and a bar row at random places (900 MHz, 1 cm traces)."""
+    rng = np.random.default_rng(seed)
+    gpr = replace(GprConfig(), centre_frequency_mhz=900.0, antenna_height_m=0.02, tx_rx_offset_m=0.06)
+    targets = [SyntheticTarget(float(rng.uniform(0.15, 0.85)), float(rng.uniform(0.15, 0.35)),
+                               float(rng.uniform(0.01, 0.06)), 1.0) for _ in range(2)]
+    targets += [SyntheticTarget(0.05 + 0.2 * k, 0.06, 0.006, 0.5) for k in range(5)]
+    b = synthetic_bscan(targets, v_m_per_ns=0.1, centre_frequency_mhz=900.0, n_traces=TRACES, spacing_m=0.01,
+                        samples=512, dt_ns=0.025, t0_ns=1.0, antenna_height_m=0.02, tx_rx_offset_m=0.06,
+                        noise=0.01, direct_wave=3.0, rng=rng)
+    return replace(b, t0_ns=math.nan), gpr
+
+
+def _pieces() -> list[tuple[str, BScan, GprConfig]]:
+    """100-trace pieces of the yardsticks' B-scans (FDTD scenes repeated to 100 traces when shorter)."""
+    from validation.cases import bscan_along_x, fdtd_cases, real_cases
+
+    out = []
+    for case in fdtd_cases() + real_cases():
+        b, gpr = case.load()
+        data = np.asarray(b.data)
+        spacing = float(b.positions[1, 0] - b.positions[0, 0])
+        if data.shape[0] < TRACES:
+            data = np.concatenate([data] * math.ceil(TRACES / data.shape[0]))[:TRACES]
+        else:
+            step = max(1, round(0.01 / spacing))  # the chain works on a ≥ 1 cm grid: give it 100 columns
+            data, spacing = data[: TRACES * step : step], spacing * step
+        out.append((case.name, bscan_along_x(data[:TRACES], b.dt_ns, spacing), gpr))
+    return out
+
+
+def _median(run: list[tuple[str, BScan, GprConfig]], velocity: bool) -> tuple[float, float]:
+    """(median, 90th percentile) seconds per B-scan."""
+    times = []
+    for _, b, gpr in run:
+        start = time.perf_counter()
+        interpret(b, gpr, 0.1 if velocity else None)
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), float(np.percentile(times, 90))
+
+
+def main() -> None:
+    """Print the medians and one run's stage split."""
+    print(f"machine: {machine_description()}")
+    lines = [(f"analytic {s}", *_analytic(s)) for s in range(10)]
+    try:
+        lines += _pieces()
+    except ImportError:
+        print("(validation/ not importable: analytic lines only)")
+    interpret(lines[0][1], lines[0][2])  # warm-up (imports, caches)
+    for velocity in (False, True):
+        med, p90 = _median(lines, velocity)
+        print(f"{len(lines)} B-scans of {TRACES} traces, velocity {'given' if velocity else 'estimated'}: "
+              f"median {med * 1000:.0f} ms, p90 {p90 * 1000:.0f} ms per B-scan")
+    _, b, gpr = lines[0]
+    t = [time.perf_counter()]
+    prep = prepare(b, gpr)
+    t.append(time.perf_counter())
+    cands = apex_candidates(prep)
+    t.append(time.perf_counter())
+    refl = fit_reflectors(prep, cands)
+    t.append(time.perf_counter())
+    estimate_velocity(prep, refl)
+    t.append(time.perf_counter())
+    names = ("prepare", "candidates", "picks+fits", "velocity")
+    print("stages of one analytic line: " + ", ".join(f"{n} {1000 * (b - a):.0f} ms"
+                                                     for n, a, b in zip(names, t[:-1], t[1:], strict=True)))
+
+
+if __name__ == "__main__":
+    main()
