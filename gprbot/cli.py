@@ -91,8 +91,14 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
     from gprbot.interpret_file import interpret_file
 
     out = Path(args.out) if args.out else None
+    config = None
+    if args.config:
+        from gprbot.config import load_config
+
+        config = load_config(args.config)
     report = interpret_file(
-        Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing, args.allow_partial
+        Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing, args.allow_partial,
+        height_m=args.height, offset_m=args.offset, config=config,
     )
     print(report)
     return 0
@@ -188,6 +194,9 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("--allow-partial", action="store_true", help="drop a trailing partial scan (a cut file)")
     interp.add_argument("--frequency", type=float, help="antenna centre frequency in MHz (default: from header)")
     interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
+    interp.add_argument("--height", type=float, help="antenna height above the surface in m (default: 0)")
+    interp.add_argument("--offset", type=float, help="Tx-Rx separation in m (default: from the file or antenna)")
+    interp.add_argument("--config", help="config YAML (interpretation.method: classical or migrationnet)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
     interp.set_defaults(func=_cmd_interpret)
 

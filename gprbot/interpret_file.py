@@ -8,12 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from gprbot.config import GprConfig, InterpretationConfig, load_config
-from gprbot.errors import DataFormatError, InterpretationError
+from gprbot.config import Config, GprConfig, InterpretationConfig, load_config
+from gprbot.errors import DataFormatError
 from gprbot.gpr.antennas import GSSI_ANTENNAS, antenna_frequency_mhz, check_frequency_mhz
-from gprbot.gpr.bscan import BScan
+from gprbot.gpr.bscan import BScan, CrossSection
+from gprbot.gpr.chain.classify import ClassifiedDetection
+from gprbot.gpr.chain.run import interpret
 from gprbot.gpr.formats import Radargram, read_radargram
-from gprbot.gpr.interpret import interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
 from gprbot.gpr.traveltime import velocity_from_eps
@@ -27,6 +28,7 @@ __all__ = [
 # A GSSI ground-coupled antenna rides on the surface; its Tx–Rx spacing is a fraction of a
 # wavelength in air. These are approximations for the travel-time model, not vendor figures.
 DEFAULT_OFFSET_M = {100: 0.5, 200: 0.3, 270: 0.25, 400: 0.16, 500: 0.12, 900: 0.06}
+FILL_HINT = {"slower": "metal, water or wet (slower than the host)", "faster": "air-filled or a void (faster)"}
 
 
 def gpr_config_for(rg: Radargram, base: GprConfig, frequency_mhz: float | None) -> GprConfig:
@@ -77,6 +79,36 @@ def file_bscan(
     return radargram_bscan(rg, spacing_m, str(path)), rg
 
 
+def _antenna_geometry(gpr: GprConfig, height_m: float | None, offset_m: float | None) -> tuple[GprConfig, str]:
+    """The antenna geometry to interpret with (the options override the file/table values) and where it came from."""
+    if height_m is not None and not 0.0 <= height_m <= 1.0:
+        raise DataFormatError(f"--height {height_m:g} m: give the antenna's height above the surface, 0 to 1 m")
+    if offset_m is not None and not 0.0 <= offset_m <= 5.0:
+        raise DataFormatError(f"--offset {offset_m:g} m: give the Tx-Rx separation, 0 to 5 m")
+    origin = "options" if height_m is not None or offset_m is not None else "file or antenna table"
+    return replace(gpr, antenna_height_m=gpr.antenna_height_m if height_m is None else height_m,
+                   tx_rx_offset_m=gpr.tx_rx_offset_m if offset_m is None else offset_m), origin
+
+
+def _detection_json(d: ClassifiedDetection) -> dict[str, object]:
+    """One detection as detections.json lists it."""
+    return {
+        "x_m": round(d.x_m, 4), "depth_m": round(d.depth_m, 4), "cover_m": round(d.fit.top_m, 4),
+        "radius_m": round(d.radius_m, 4), "radius_sigma_m": round(d.radius_sigma_m, 4),
+        "radius_supported": d.radius_supported,
+        "contrast": d.contrast, "fill_hint": FILL_HINT[d.contrast],
+        "confidence": round(d.confidence, 3), "picks": d.fit.n_picks,
+    }
+
+
+def _migrationnet_section(bscan: BScan, gpr: GprConfig, cfg: InterpretationConfig, v: float) -> CrossSection:
+    """MigrationNet's section of the B-scan at velocity v (the configured learned interpreter)."""
+    from gprbot.infer.pipeline import migrationnet_interpreter
+
+    net = migrationnet_interpreter(cfg.migrationnet_model, 2)
+    return net.interpret(preprocess(bscan, gpr), gpr, cfg, v)
+
+
 def interpret_file(
     path: Path,
     out_dir: Path | None,
@@ -85,31 +117,39 @@ def interpret_file(
     frequency_mhz: float | None = None,
     spacing_m: float | None = None,
     allow_partial: bool = False,
+    *,
+    height_m: float | None = None,
+    offset_m: float | None = None,
+    config: Config | None = None,
 ) -> str:
-    """Interpret a GPR file of any format, write detections.json and PNGs, and return a printable report."""
-    cfg = load_config()
+    """Interpret a GPR file of any format, write detections.json and PNGs, and return a printable report.
+
+    The configured `interpretation.method` decides: "classical" is the interpretation chain
+    (gprbot.gpr.chain: pipes and rebars, velocity estimated from the hyperbolas); "migrationnet" is the
+    learned model on the section migrated at the chain's (or the given) velocity.
+    """
+    cfg = config or load_config()
     bscan, rg = file_bscan(path, channel, spacing_m, allow_partial)
     notes: list[str] = list(rg.warnings)
-    gpr = gpr_config_for(rg, cfg.gpr, frequency_mhz)
+    gpr, geometry_origin = _antenna_geometry(gpr_config_for(rg, cfg.gpr, frequency_mhz), height_m, offset_m)
     eps_r = float(rg.header.get("eps_r") or 0.0) if rg.source_format == "dzt" else 0.0
-    interp: InterpretationConfig = cfg.interpretation
+    fallback = velocity_from_eps(eps_r) if eps_r > 1.0 else None
     out = out_dir or Path(cfg.runs_dir) / time.strftime(f"interpret-{path.stem}-%Y%m%d-%H%M%S")
     out.mkdir(parents=True, exist_ok=True)
-    # The time window sets how deep the section can reach; the 0.6 m default suits a slab at 900 MHz.
-    v_guess = velocity or velocity_from_eps(eps_r if eps_r > 1 else 6.0)
-    interp = replace(interp, depth_max_m=0.5 * v_guess * rg.window_ns)
-    processed = preprocess(bscan, gpr)
-    try:
-        section = interpret_bscan(processed, gpr, interp, velocity)
-    except InterpretationError as exc:
-        if velocity is not None or eps_r <= 1:
-            raise
-        # No hyperbola to measure the velocity on: fall back to the permittivity the operator set.
-        notes.append(f"velocity not estimated ({exc}); used the header's eps_r {eps_r:g}")
-        section = interpret_bscan(processed, gpr, interp, velocity_from_eps(eps_r))
-    detections = [
-        {"x_m": d.x_m, "depth_m": d.depth_m, "radius_m": d.radius_m, "score": d.score} for d in section.detections
-    ]
+    start = time.perf_counter()
+    result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback)
+    notes += list(result.notes)
+    method = cfg.interpretation.method
+    section = result.section
+    pipes = [_detection_json(d) for d in result.pipes]
+    if method == "migrationnet":
+        interp = replace(cfg.interpretation, depth_max_m=float(section.z_m[-1]))
+        section = replace(_migrationnet_section(bscan, gpr, interp, result.velocity), rebars=section.rebars)
+        pipes = [{"x_m": round(d.x_m, 4), "depth_m": round(d.depth_m, 4), "radius_m": round(d.radius_m, 4),
+                  "confidence": round(d.score, 3)} for d in section.detections]
+        notes.append("pipes from MigrationNet (interpretation.method: migrationnet); rebars, velocity from the chain")
+    seconds = time.perf_counter() - start
+    prep = result.prepared
     write_json_atomic(
         out / "detections.json",
         {
@@ -117,28 +157,44 @@ def interpret_file(
             "channel": channel,
             "format": rg.source_format,
             "antenna": rg.antenna,
+            "method": "interpretation chain" if method == "classical" else "migrationnet",
             "centre_frequency_mhz": gpr.centre_frequency_mhz,
-            "velocity_m_per_ns": section.velocity_m_per_ns,
-            "velocity_estimated": section.velocity_estimated,
+            "dominant_frequency_mhz": round(prep.frequency_mhz, 1),
+            "antenna_height_m": gpr.antenna_height_m,
+            "tx_rx_offset_m": gpr.tx_rx_offset_m,
+            "antenna_geometry_from": geometry_origin,
+            "time_zero_ns": round(prep.t0_ns, 4),
+            "time_zero_from": prep.t0_method,
+            "velocity_m_per_ns": round(result.velocity, 5),
+            "velocity_sigma_m_per_ns": None if result.velocity_sigma != result.velocity_sigma
+            else round(result.velocity_sigma, 5),
+            "velocity_source": result.velocity_source,
+            "velocity_method": result.velocity_method,
+            "velocity_estimated": result.velocity_source == "estimated",
             "x_origin": "the first trace",
-            "depth_origin": "the ground surface (depth of the pipe's centre, positive down)",
-            "detections": detections,
+            "depth_origin": "the ground surface (depth of the target's centre, positive down; cover_m to its top)",
+            "detections": pipes,
+            "rebars": [_detection_json(d) for d in result.rebars],
             "notes": notes,
+            "seconds": round(seconds, 3),
         },
     )
-    write_bscan_png(out / "bscan.png", processed)
+    write_bscan_png(out / "bscan.png", preprocess(bscan, replace(gpr, pre_trigger_ns=prep.t0_ns)))
     write_cross_section_png(out / "section.png", section)
+    v_text = {"given": "given", "estimated": f"estimated ±{result.velocity_sigma:.4f}, {result.velocity_method}",
+              "fallback": "not estimated"}[result.velocity_source]
     lines = [
         f"{path.name} ({rg.source_format}): {rg.traces} traces × {rg.n_samples} samples, "
-        f"{gpr.centre_frequency_mhz:.0f} MHz",
-        f"velocity {section.velocity_m_per_ns:.4f} m/ns "
-        f"({'estimated' if section.velocity_estimated else 'given'}), {len(detections)} detections:",
+        f"{gpr.centre_frequency_mhz:.0f} MHz antenna (reflections peak near {prep.frequency_mhz:.0f} MHz)",
+        f"velocity {result.velocity:.4f} m/ns ({v_text}); {len(pipes)} pipes, {len(result.rebars)} rebars "
+        f"({seconds:.2f} s):",
     ]
-    lines += [
-        f"  x {d['x_m']:6.2f} m  depth {d['depth_m']:5.2f} m  radius {100 * d['radius_m']:4.1f} cm  "
-        f"score {d['score']:.2f}"
-        for d in detections
-    ]
+    for d in pipes:
+        x, depth, r, conf = (float(str(d[k])) for k in ("x_m", "depth_m", "radius_m", "confidence"))
+        radius = f"radius {100 * r:4.1f} cm" + ("" if d.get("radius_supported", True) else " (?)")
+        lines.append(f"  pipe   x {x:6.2f} m  depth {depth:5.2f} m  {radius}  confidence {conf:.2f}")
+    for bar in result.rebars:
+        lines.append(f"  rebar  x {bar.x_m:6.2f} m  cover {bar.fit.top_m:5.3f} m")
     lines += [f"note: {n}" for n in notes]
     lines.append(f"written: {out}/detections.json, bscan.png, section.png")
     return "\n".join(lines)

@@ -53,11 +53,21 @@ def _gpr(frequency_mhz: float, height_m: float, offset_m: float) -> GprConfig:
 
 def _dzt_loader(path: Path, frequency_mhz: float, height_m: float, offset_m: float,
                 spacing_m: float | None = None) -> Callable[[], tuple[BScan, GprConfig]]:
-    """Read a DZT as `gprbot interpret` does: spacing from traces per metre unless given."""
+    """Read a DZT with a known antenna (the FDTD scenes: the truth's geometry, as a user configures it)."""
     def load() -> tuple[BScan, GprConfig]:
         dzt = read_dzt(path)
         spacing = spacing_m or 1.0 / dzt.header.traces_per_m
         return bscan_along_x(dzt.as_float(), dzt.header.dt_ns, spacing), _gpr(frequency_mhz, height_m, offset_m)
+    return load
+
+
+def _file_loader(path: Path) -> Callable[[], tuple[BScan, GprConfig]]:
+    """Read any file exactly as `gprbot interpret FILE` does (geometry from the file or the antenna table)."""
+    def load() -> tuple[BScan, GprConfig]:
+        from gprbot.interpret_file import file_bscan, gpr_config_for
+
+        bscan, rg = file_bscan(path, 0, None)
+        return bscan, gpr_config_for(rg, GprConfig(), None)
     return load
 
 
@@ -83,11 +93,11 @@ def real_cases() -> list[Case]:
     ss = REAL_DATA / "gssi_ssmini_rebar_ietgpr"
     bars_002 = (0.08, 0.30, 0.48, 0.69, 0.88, 1.11, 1.30)
     cases = [
-        Case("ssmini File____002 (7 rebars)", "real", _dzt_loader(ss / "File____002.DZT", 1600.0, 0.0, 0.04),
+        Case("ssmini File____002 (7 rebars)", "real", _file_loader(ss / "File____002.DZT"),
              None, tuple(Target(x, None, None, "rebar") for x in bars_002), 0.02,
              note="positions read from the data by eye, ±2 cm"),
         Case("ssmini File____001 (3 shallow + 2 deeper)", "real",
-             _dzt_loader(ss / "File____001.DZT", 1600.0, 0.0, 0.04), None,
+             _file_loader(ss / "File____001.DZT"), None,
              tuple(Target(x, None, None, "rebar") for x in (0.165, 0.49, 0.81))
              + tuple(Target(x, None, None, "pipe") for x in (0.23, 0.56)), 0.03,
              note="medium trust; the deeper row's kind is unknown (scored as targets of any kind)"),

@@ -111,8 +111,8 @@ def report(rows: Sequence[Row], groups: Sequence[str], methods: Sequence[str]) -
                 sel = [r for r in rows if r.case.group == group and r.method == m and r.mode == mode]
                 if sel:
                     lines.append(f"| {m} | {mode} | " + " | ".join(summary(sel).values()) + " |")
-        lines += ["", "| scene | kind | method | velocity | ≤3 cm | ≤1 cm | radius | false pipes | rebars | v err | s |",
-                  "|" + "---|" * 11]
+        lines += ["", "| scene | kind | method | velocity | ≤3 cm | ≤1 cm | radius | false pipes | rebars | v err "
+                  "| s |", "|" + "---|" * 11]
         lines += [scene_row(r) for r in rows if r.case.group == group]
         lines.append("")
     real = [r for r in rows if r.case.group == "real"]

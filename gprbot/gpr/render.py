@@ -20,6 +20,7 @@ from gprbot.gpr.migration import envelope
 _MARGIN_LEFT, _MARGIN_BOTTOM, _MARGIN_TOP, _MARGIN_RIGHT = 70, 50, 30, 20
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _WHITE, _GREEN, _RED, _YELLOW = (255, 255, 255), (0, 200, 0), (0, 0, 255), (0, 220, 255)
+_MAGENTA = (255, 0, 255)
 _TARGET_WIDTH, _TARGET_HEIGHT = 900, 500
 
 
@@ -112,11 +113,12 @@ def _outline(canvas: NDArray[np.uint8], mask: NDArray[np.bool_], mapping: tuple[
 def write_cross_section_png(
     path: str | Path, section: CrossSection, truth_mask: NDArray[np.bool_] | None = None
 ) -> None:
-    """The migrated image's envelope, the mask outline (green), truth outline (red), detections (yellow)."""
+    """The migrated image's envelope, mask outline (green), truth outline (red), pipes (yellow), rebars (magenta)."""
     x, z = section.x_m, section.z_m
     picture = _grey(envelope(section.image), symmetric=False)
     kind = "estimated" if section.velocity_estimated else "given"
-    title = f"v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), {len(section.detections)} pipes"
+    title = (f"v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), {len(section.detections)} pipes"
+             + (f", {len(section.rebars)} rebars" if section.rebars else ""))
     canvas, mapping = _framed(picture, (float(x[0]), float(x[-1])), (float(z[0]), float(z[-1])),
                               "x (m)", "depth (m)", title)
     if truth_mask is not None:
@@ -126,6 +128,8 @@ def write_cross_section_png(
     for d in section.detections:
         px, pz = round(sx * d.x_m + ox), round(sz * d.depth_m + oz)
         cv2.drawMarker(canvas, (px, pz), _YELLOW, cv2.MARKER_CROSS, 10, 1)
-        label = f"{d.depth_m:.2f}/{d.radius_m * 100:.1f}cm"
+        label = f"{d.depth_m:.2f} m, D {d.radius_m * 200:.1f} cm"
         cv2.putText(canvas, label, (px + 6, pz - 6), _FONT, 0.4, _YELLOW, 1)
+    for r in section.rebars:
+        cv2.circle(canvas, (round(sx * r.x_m + ox), round(sz * r.depth_m + oz)), 4, _MAGENTA, 1)
     _write(path, canvas)

@@ -3,6 +3,7 @@
 Rules (what a GPR analyst reads off a radargram):
 - a **hyperbola** has picks on both flanks (or a long one at the line's end), a small misfit and a
   velocity of its own consistent with the line's;
+- the lower arms of two neighbours' crossing flanks (a V whose picks lie on their curves) are dropped;
 - an **echo** of another target is dropped: a reflector under a stronger one at the same x, arriving
   within a pipe's inner-echo delay (a PVC pipe's bottom, ringing) or at twice its time (a surface multiple);
 - **rebar**: four or more reflectors (three if thin) at one cover, evenly spaced (a bar may be
@@ -21,6 +22,7 @@ from typing import Literal
 import numpy as np
 
 from gprbot.gpr.chain.fit import R_MAX_M, CylinderFit
+from gprbot.gpr.chain.geometry import cylinder_time
 from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.reflectors import Reflector
 
@@ -28,7 +30,7 @@ MIN_FLANK_PICKS = 3
 FLANK_BALANCE = 0.25  # the shorter flank at least this fraction of the longer (else: one-sided)
 MAX_RMS_PERIODS = 0.15
 MAX_RMS_COHERENT_PERIODS = 0.25
-COHERENT = 0.6
+COHERENT = 0.5
 MIN_COHERENCE = 0.25
 VELOCITY_FACTOR = 2.0  # a hyperbola's own velocity within this factor of the line's (plus 3 sigma)
 ROW_MIN_BARS = 3
@@ -40,6 +42,8 @@ BAR_MAX_RADIUS_M = 0.02
 ECHO_X_TOLERANCE_M = 0.03
 MULTIPLE_X_TOLERANCE_M = 0.012
 STRAIGHT_RATIO = 2.0  # a hyperbola fits its picks at least this much better than a straight line
+ON_FLANK_PERIODS = 0.3
+ON_FLANK_FRACTION = 0.6
 RADIUS_SUPPORT = 0.3  # a radius whose 1-sigma error exceeds this fraction of it is not supported
 
 
@@ -106,6 +110,20 @@ def _is_echo(a: CylinderFit, b: CylinderFit) -> bool:
     return inner or multiple
 
 
+def _on_other_flanks(prep: PreparedBScan, r: Reflector, stronger: Sequence[CylinderFit]) -> bool:
+    """Whether a reflector's picks run along stronger hyperbolas' flanks: the lower arms of two crossing flanks.
+
+    Where two neighbours' flanks cross, the later arms form a V that looks like an apex; its picks lie
+    on the curves already found.
+    """
+    if not stronger or len(r.picks.x_m) == 0:
+        return False
+    h, off = prep.antenna_height_m, prep.tx_rx_offset_m
+    curves = np.stack([cylinder_time(r.picks.x_m, g.x0_m, g.depth_m, g.radius_m, g.v, h, off) for g in stronger])
+    near = np.min(np.abs(curves - r.picks.t_ns[None, :]), axis=0) <= ON_FLANK_PERIODS * prep.period_ns
+    return float(np.mean(near)) >= ON_FLANK_FRACTION
+
+
 def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
     """Indices of fits that form rebar rows: evenly spaced reflectors at one cover (a bar may be missing).
 
@@ -151,7 +169,7 @@ def classify(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> 
     kept.sort(key=lambda rf: -rf[0].candidate.amplitude)
     primary: list[tuple[Reflector, CylinderFit]] = []
     for r, f in kept:
-        if not any(_is_echo(g, f) for _, g in primary):
+        if not any(_is_echo(g, f) for _, g in primary) and not _on_other_flanks(prep, r, [g for _, g in primary]):
             primary.append((r, f))
     primary.sort(key=lambda rf: rf[1].x0_m)
     bars = _rebar_rows([f for _, f in primary])
