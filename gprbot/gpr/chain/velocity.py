@@ -32,8 +32,8 @@ APERTURE_DEG = 50.0
 WINDOW_X_M = 0.05
 MAX_VOTERS = 8
 MIN_FLANK = 3
-MIN_CONTRAST = 1.15
-FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight  # a focus curve whose peak is not this far above its ends says nothing
+MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
+FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight
 
 
 @dataclass(frozen=True)
