@@ -61,13 +61,14 @@ def _dzt_loader(path: Path, frequency_mhz: float, height_m: float, offset_m: flo
     return load
 
 
-def _file_loader(path: Path) -> Callable[[], tuple[BScan, GprConfig]]:
-    """Read any file exactly as `gprbot interpret FILE` does (geometry from the file or the antenna table)."""
+def _file_loader(path: Path, spacing_m: float | None = None,
+                 frequency_mhz: float | None = None) -> Callable[[], tuple[BScan, GprConfig]]:
+    """Read any file exactly as `gprbot interpret FILE [--spacing] [--frequency]` does."""
     def load() -> tuple[BScan, GprConfig]:
         from gprbot.interpret_file import file_bscan, gpr_config_for
 
-        bscan, rg = file_bscan(path, 0, None)
-        return bscan, gpr_config_for(rg, GprConfig(), None)
+        bscan, rg = file_bscan(path, 0, spacing_m)
+        return bscan, gpr_config_for(rg, GprConfig(), frequency_mhz)
     return load
 
 
@@ -101,5 +102,28 @@ def real_cases() -> list[Case]:
              tuple(Target(x, None, None, "rebar") for x in (0.165, 0.49, 0.81))
              + tuple(Target(x, None, None, "pipe") for x in (0.23, 0.56)), 0.03,
              note="medium trust; the deeper row's kind is unknown (scored as targets of any kind)"),
+        Case("gprMax 2D PEC bar (3.1.7 .out)", "real", _file_loader(REAL_DATA / "gprmax_cylinder_2d" /
+                                                               "cylinder_Bscan_2D_merged.out"),
+             6 ** -0.5 * 0.299792458, (Target(0.06, 0.09, 0.01, "pipe"),), 0.03,
+             note="exact: r 10 mm, 90 mm to the centre, eps_r 6; only 60 traces (12 cm) at 2 mm"),
+        Case("gprMax 3D GSSI-1.5 GHz antenna model, PEC bar", "real",
+             _file_loader(REAL_DATA / "gprmax_gssi1500_cylinder_3d" / "GSSI_1500_cylinder_Bscan_all.out", 0.005),
+             6 ** -0.5 * 0.299792458, (Target(0.135, 0.09, 0.01, "pipe"),), 0.03,
+             note="exact geometry; positions from the .in's python block (--spacing 0.005); the model's Tx-Rx "
+                  "separation is not stated, the antenna table's 5 cm is used"),
+        Case("SU trench with 12 diffractors", "real",
+             _file_loader(REAL_DATA / "su_trench_pipes_matgpr" / "trench_and_pipes.su", None, 500.0),
+             None, (), 0.03, expected_count=12,
+             note="count only (positions unpublished here); v 0.165 m/ns in the sand fill; dt and trace step "
+                  "inferred; the file states no frequency: 500 MHz is passed"),
+        Case("MALÅ RD3 250 MHz geology (negative)", "real",
+             _file_loader(REAL_DATA / "mala_rd3_250mhz_matgpr" / "DAT_0097.rd3"), None, (), 0.03, expected_count=0,
+             note="dipping geology, no buried objects: a good interpretation reports none"),
+        Case("pulseEKKO DT1 100 MHz sediments (negative)", "real",
+             _file_loader(REAL_DATA / "pulseekko_dt1_rgpr_negative" / "yyline3.DT1"), None, (), 0.03, expected_count=0,
+             note="fluvial sediments, no point targets"),
+        Case("SIR-3000 400 MHz field line FILE____032 (no truth)", "real",
+             _file_loader(REAL_DATA / "FILE____032.DZT"), None, (), 0.03, expected_count=None,
+             note="no buried-object truth; no clean subsurface hyperbola is visible (reported, not scored)"),
     ]
     return cases

@@ -26,7 +26,6 @@ FloatArray = NDArray[np.float64]
 _DIRECT_SEARCH_FRACTION = 0.6  # the direct wave lies in the first part of any sensible window
 _MIN_FREQUENCY_RATIO, _MAX_FREQUENCY_RATIO = 0.25, 3.0  # band searched around the nominal frequency
 SAMPLES_PER_PERIOD = 16  # finer time sampling adds cost and no information: decimate down to it
-MAX_SPACING_M = 0.02
 
 
 @dataclass(frozen=True)
@@ -95,10 +94,13 @@ def dominant_frequency(data: FloatArray, dt_ns: float, start: int, nominal_mhz: 
 
 
 def grid_spacing(along_m: FloatArray, centre_frequency_mhz: float) -> float:
-    """Along-track grid step: the mean trace step, no finer than a tenth of a wavelength in concrete, ≤ 2 cm."""
+    """Along-track grid step: the mean trace step, but traces denser than λ/16 (at 0.1 m/ns, ≤ 1 cm) are binned.
+
+    A line is never interpolated finer than it was recorded (a 100 MHz line at 25 cm stays at 25 cm).
+    """
     mean_step = float(np.ptp(along_m)) / max(len(along_m) - 1, 1)
-    finest = min(0.01, 0.1 / (centre_frequency_mhz / 1000.0) / 10.0)  # λ at 0.1 m/ns over 10
-    return float(np.clip(mean_step, finest, MAX_SPACING_M))
+    finest = min(0.01, 0.1 / (centre_frequency_mhz / 1000.0) / 16.0)
+    return max(mean_step, finest)
 
 
 def decimation_factor(dt_ns: float, centre_frequency_mhz: float) -> int:
