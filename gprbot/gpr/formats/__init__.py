@@ -17,6 +17,8 @@ __all__ = ["READ_FORMATS", "WRITE_FORMATS", "Radargram", "detect_format", "read_
 
 READ_FORMATS = ("dzt", "dt1", "mala", "segy", "su", "gprmax")
 WRITE_FORMATS = {".dzt": "dzt", ".dt1": "dt1", ".hd": "dt1", ".sgy": "segy", ".segy": "segy", ".su": "su"}
+_BY_SUFFIX = {".dzt": "dzt", ".dt1": "dt1", ".rd3": "mala", ".rd7": "mala", ".sgy": "segy", ".segy": "segy",
+              ".su": "su", ".out": "gprmax"}
 _HEAD = 3600 + 240 + 4 * 65536  # enough for a SEG-Y reel header or one SU trace of any length, plus a header
 
 
@@ -30,15 +32,15 @@ def _is_dzt(head: bytes) -> bool:
     return tag_ok and int(nsamp) > 0 and int(bits) in (8, 16, 32)
 
 
-def _is_dt1(head: bytes, size: int) -> bool:
-    """A first 128-byte trace header whose points and bytes per point divide the file size."""
+def _is_dt1(head: bytes, size: int, has_hd: bool) -> bool:
+    """A first 128-byte trace header whose points and bytes per point divide the file size (or an .HD beside)."""
     if len(head) < 128:
         return False
     words = np.frombuffer(head, "<f4", count=8)
     points, bpp = float(words[2]), float(words[5])
     if not (np.isfinite(points) and points == int(points) and 0 < points <= 65536 and bpp in (2.0, 4.0)):
         return False
-    return size % (128 + int(bpp) * int(points)) == 0
+    return has_hd or size % (128 + int(bpp) * int(points)) == 0
 
 
 def detect_format(path: str | Path) -> str:
@@ -67,7 +69,7 @@ def detect_format(path: str | Path) -> str:
         return "segy"
     if _is_dzt(head):
         return "dzt"
-    if _is_dt1(head, size):
+    if _is_dt1(head, size, sibling(p, (".hd",)) is not None):
         return "dt1"
     rad = sibling(p, (".rad",))
     if rad is not None and looks_like_rad(read_text(rad, "MALÅ header")):
@@ -76,6 +78,8 @@ def detect_format(path: str | Path) -> str:
         return "su"
     if layout is not None:
         return "segy"
+    if suffix in _BY_SUFFIX:  # content unclear (a cut file?): the suffix names the reader, which says what is wrong
+        return _BY_SUFFIX[suffix]
     raise DataFormatError(
         f"{p}: not a GPR file this reader knows (DZT, DT1+HD, RD3/RD7+RAD, SEG-Y, SU, gprMax .out); "
         "check the file, or that its header sidecar (.HD, .rad) sits beside it"

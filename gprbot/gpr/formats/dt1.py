@@ -62,7 +62,7 @@ def _number(hd: dict[str, str], key: str) -> float | None:
 
 def read_dt1(path: Path, *, allow_partial: bool = False) -> Radargram:
     """A DT1 file (given as .DT1 or .HD) with its .HD and .GPS beside it."""
-    dt1 = path if path.suffix.lower() == ".dt1" else sibling(path, (".dt1",))
+    dt1 = sibling(path, (".dt1",)) if path.suffix.lower() == ".hd" else path
     if dt1 is None:
         raise DataFormatError(f"{path}: no .DT1 data file beside this .HD header; copy both files")
     notes: list[str] = []

@@ -7,7 +7,10 @@ holds no trace positions: they come from the .in beside it when it states #src_s
 
 from __future__ import annotations
 
+import faulthandler
+import multiprocessing as mp
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -36,11 +39,12 @@ def _h5py() -> Any:
     return h5py
 
 
-def read_gprmax(path: Path, *, component: str | None = None, receiver: str = "rx1") -> Radargram:
-    """A gprMax output file: the strongest E component of `receiver` unless `component` names one."""
+LOAD_TIMEOUT_S = 120.0
+
+
+def _load(src: str, component: str | None, receiver: str) -> tuple[dict[str, Any], dict[str, Any], int]:
+    """The root attributes, the wanted component arrays and the receiver count, read with h5py."""
     h5py = _h5py()
-    src = str(path)
-    notes: list[str] = []
     try:
         with h5py.File(src, "r") as f:
             attrs = {k: _plain(v) for k, v in f.attrs.items()}
@@ -60,9 +64,59 @@ def read_gprmax(path: Path, *, component: str | None = None, receiver: str = "rx
                 raise DataFormatError(f"{src}: component {component!r} is not in the file (it has {have})")
             wanted = [component] if component else [c for c in present if c.startswith("E")] or present
             arrays = {c: np.asarray(group[c][...], dtype=np.float32) for c in wanted}
-            nrx = len(f["rxs"])
-    except OSError as exc:
-        raise DataFormatError(f"{src}: h5py cannot read it as HDF5 ({exc}); the file is damaged or not gprMax") from exc
+            return attrs, arrays, len(f["rxs"])
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:  # what h5py raises on damaged files
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DataFormatError(f"{src}: h5py cannot read it ({why}); the file is damaged or not gprMax output") from exc
+
+
+def _child(conn: Any, src: str, component: str | None, receiver: str) -> None:
+    faulthandler.disable()  # a crash here is expected on damaged files and reported by the parent
+    try:
+        conn.send(_load(src, component, receiver))
+    except DataFormatError as exc:
+        conn.send(str(exc))
+    finally:
+        conn.close()
+
+
+def _load_isolated(src: str, component: str | None, receiver: str) -> tuple[dict[str, Any], dict[str, Any], int]:
+    """`_load` in a forked child: the HDF5 C library can crash on a damaged file, and must not take us along."""
+    _h5py()
+    if "fork" not in mp.get_all_start_methods():
+        return _load(src, component, receiver)
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # 3.12+: fork of a threaded process; the child only reads
+        proc = ctx.Process(target=_child, args=(child, src, component, receiver), daemon=True)
+        proc.start()
+    child.close()
+    try:
+        result = parent.recv() if parent.poll(LOAD_TIMEOUT_S) else None
+    except EOFError:
+        result = None
+    finally:
+        parent.close()
+        proc.join(1.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+    if isinstance(result, str):
+        raise DataFormatError(result)
+    if result is None:
+        raise DataFormatError(
+            f"{src}: the HDF5 library failed reading it (exit code {proc.exitcode}); the file is damaged, copy it again"
+        )
+    attrs, arrays, nrx = result
+    return attrs, arrays, nrx
+
+
+def read_gprmax(path: Path, *, component: str | None = None, receiver: str = "rx1") -> Radargram:
+    """A gprMax output file: the strongest E component of `receiver` unless `component` names one."""
+    src = str(path)
+    notes: list[str] = []
+    attrs, arrays, nrx = _load_isolated(src, component, receiver)
     if component is None:
         energy = {c: float(np.nansum(np.square(a, dtype=np.float64))) for c, a in arrays.items() if c.startswith("E")}
         component = max(energy, key=lambda c: energy[c]) if energy else next(iter(arrays))

@@ -148,7 +148,7 @@ def write_segy(path: Path, rg: Radargram) -> tuple[list[Path], list[str]]:
         with segyio.create(str(temp), spec) as f:
             f.text[0] = segyio.tools.create_text_header(lines)
             f.bin.update({segyio.BinField.Interval: dt_ps, segyio.BinField.Samples: m, segyio.BinField.Format: 5,
-                          segyio.BinField.MeasurementSystem: 1, segyio.BinField.SEGYRevision: 256,
+                          segyio.BinField.MeasurementSystem: 1, segyio.BinField.SEGYRevision: 1,
                           segyio.BinField.TraceFlag: 1, segyio.BinField.Traces: 1})
             for i in range(n):
                 f.header[i] = {_TF.TRACE_SEQUENCE_LINE: i + 1, _TF.TRACE_SEQUENCE_FILE: i + 1, _TF.CDP: i + 1,
