@@ -19,7 +19,9 @@ from gprbot.gpr.chain.prepare import PreparedBScan
 
 SNR_MIN = 6.0  # envelope over the noise's standard deviation
 DYNAMIC_RANGE = 0.01  # events weaker than this fraction of the strongest are numerical dust or ringing
-MAX_CANDIDATES = 24
+MAX_CANDIDATES = 24  # on a line up to 2 m; longer lines get CANDIDATES_PER_M
+CANDIDATES_PER_M = 12
+MAX_CANDIDATES_LINE = 400
 APEX_TEST_M = 0.03  # neighbours this far either side must see the event no earlier
 APEX_EARLIER_PERIODS = 0.05
 
@@ -77,14 +79,17 @@ def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
     # One candidate per top: the earliest, then none within k columns and a quarter period of it.
     picked: list[tuple[int, int]] = []
     quarter = max(1, half // 2)
+    taken = np.zeros(env.shape, dtype=bool)  # cells within k columns and a quarter period of a pick
     for i in np.lexsort((-env[cols, rows], rows)):
         c, r = int(cols[i]), int(rows[i])
-        if all(abs(c - pc) > k or abs(r - pr) > quarter for pc, pr in picked):
+        if not taken[c, r]:
             picked.append((c, r))
+            taken[max(0, c - k) : c + k + 1, max(0, r - quarter) : r + quarter + 1] = True
     picked.sort(key=lambda cr: -env[cr[0], cr[1]])
+    limit = min(MAX_CANDIDATES_LINE, max(MAX_CANDIDATES, round(CANDIDATES_PER_M * float(np.ptp(prep.x_m)))))
     out = []
     ns = env.shape[1]
-    for c, r in picked[:MAX_CANDIDATES]:
+    for c, r in picked[:limit]:
         a, b, d = (env[c, r - 1], env[c, r], env[c, r + 1]) if 0 < r < ns - 1 else (0.0, 1.0, 0.0)
         denom = a - 2.0 * b + d
         frac = 0.0 if denom == 0 else float(np.clip(0.5 * (a - d) / denom, -0.5, 0.5))

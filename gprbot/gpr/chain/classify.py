@@ -27,6 +27,7 @@ from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.reflectors import Reflector
 
 MIN_FLANK_PICKS = 3
+MIN_FLANK_WAVELENGTHS = 0.4
 FLANK_BALANCE = 0.25  # the shorter flank at least this fraction of the longer (else: one-sided)
 MAX_RMS_PERIODS = 0.15
 MAX_RMS_COHERENT_PERIODS = 0.25
@@ -67,8 +68,12 @@ def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
     """Whether a reflector's picks make a diffraction hyperbola consistent with the line's velocity."""
     p, f = r.picks, r.fit or r.free_fit
     edge = min(r.candidate.column, prep.data.shape[0] - 1 - r.candidate.column) <= 2
-    two_sided = min(p.left, p.right) >= max(MIN_FLANK_PICKS, FLANK_BALANCE * max(p.left, p.right))
-    flanks = two_sided or (edge and max(p.left, p.right) >= 2 * MIN_FLANK_PICKS)
+    # Each flank must run a fair part of a wavelength (in the ground) along the line: on a coarse
+    # low-frequency line three picks are a few centimetres of clutter, not a flank.
+    wavelength = (v if v else 0.1) / (prep.frequency_mhz / 1000.0)
+    least = max(MIN_FLANK_PICKS, math.ceil(MIN_FLANK_WAVELENGTHS * wavelength / prep.dx_m))
+    two_sided = min(p.left, p.right) >= max(least, FLANK_BALANCE * max(p.left, p.right))
+    flanks = two_sided or (edge and max(p.left, p.right) >= 2 * least)
     if not flanks or r.coherence < MIN_COHERENCE:
         return False
     # A loose fit passes only when the traces are coherent along it (a weak shallow bar under the
