@@ -67,16 +67,18 @@ def migrated(prep: PreparedBScan, v: float, depth_max_m: float) -> tuple[NDArray
 
 
 def focused(detections: tuple[ClassifiedDetection, ...], image: NDArray[np.float32], x_m: FloatArray,
-            z_m: FloatArray) -> tuple[ClassifiedDetection, ...]:
-    """The detections whose top the migrated image focuses: its envelope there a fair share of the image's 99th
-    percentile (a V of crossing flanks or a flat bump fits a curve but migrates to nothing)."""
+            z_m: FloatArray, band_m: float) -> tuple[ClassifiedDetection, ...]:
+    """The detections whose top the migrated image focuses (a V of crossing flanks or a flat bump fits a curve
+    but migrates to nothing): the envelope there a fair share of the 99th percentile of the image's rows
+    within `band_m` of its depth — its own depth, so that a weak deep pipe is not judged against the bright
+    near-surface zone or a shallow mesh."""
     env = envelope(image)
-    reference = float(np.percentile(env, 99.0))
     out = []
     for d in detections:
         cols, rows = np.abs(x_m - d.x_m) <= FOCUS_WINDOW_M, np.abs(z_m - d.fit.top_m) <= FOCUS_WINDOW_M
+        band = np.abs(z_m - d.fit.top_m) <= max(band_m, FOCUS_WINDOW_M)
         local = float(env[np.ix_(rows, cols)].max()) if cols.any() and rows.any() else 0.0
-        if local >= MIN_FOCUS * reference:
+        if band.any() and local >= MIN_FOCUS * float(np.percentile(env[band], 99.0)):
             out.append(d)
     return tuple(out)
 
@@ -127,6 +129,6 @@ def interpret(
     detections = classify(prep, reflectors, v)
     depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
     image, z = migrated(prep, v, max(depth, 0.05))
-    detections = focused(detections, image, prep.x_m, z)
+    detections = focused(detections, image, prep.x_m, z, v / (prep.frequency_mhz / 1000.0))
     section = _section(prep, detections, v, image, z, source == "estimated")
     return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))
