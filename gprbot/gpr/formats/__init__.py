@@ -23,12 +23,12 @@ _HEAD = 3600 + 240 + 4 * 65536  # enough for a SEG-Y reel header or one SU trace
 
 
 def _is_dzt(head: bytes) -> bool:
-    """rh_tag 0x00FF/0xFnFF/0x0n00 with a plausible sample count and 8/16/32 bits (dzt_header's rules)."""
+    """rh_tag 0xnnFF (0x00FF, 0xFnFF, SIR-4000's 0x07FF) or 0x0n00, a sample count and 8/16/32 bits."""
     if len(head) < 1024:
         return False
     tag, _, nsamp, bits = np.frombuffer(head, "<u2", count=4)
     low, high = int(tag) & 0xFF, int(tag) >> 8
-    tag_ok = (low == 0xFF and (high == 0 or high >> 4 == 0xF)) or (low == 0 and 1 <= high <= 0x0F)
+    tag_ok = low == 0xFF or (low == 0 and 1 <= high <= 0x0F)
     return tag_ok and int(nsamp) > 0 and int(bits) in (8, 16, 32)
 
 
