@@ -9,13 +9,15 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.config import Config, model_path
-from gprbot.gpr.bscan import BScan
+from gprbot.errors import InterpretationError
+from gprbot.gpr.bscan import BScan, Detection
+from gprbot.gpr.chain.run import interpret
 from gprbot.gpr.interpret import CrossSection, estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
@@ -77,8 +79,18 @@ def interpret_line(
         section = interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
     else:
         section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
+    section = replace(section, rebars=line_rebars(processed, cfg, velocity))
     cols = processed.position_at(section.x_m)
     return LineResult(line, processed, section, register_slice(line, section.mask, section.z_m, cols))
+
+
+def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detection, ...]:
+    """The reinforcement bars on a line (the interpretation chain's rebar rows), at the survey's velocity."""
+    try:
+        found = interpret(processed, cfg.gpr, velocity, depth_max_m=cfg.interpretation.depth_max_m)
+    except InterpretationError:
+        return ()
+    return tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in found.rebars)
 
 
 def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.Generator) -> SurveyResult:

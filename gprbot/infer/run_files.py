@@ -21,6 +21,19 @@ SPARSE_PLY = "sparse.ply"
 DENSE_PLY = "dense.ply"
 PIPES_JSON = "pipes.json"
 SUMMARY_JSON = "summary.json"
+REBARS_JSON = "rebars.json"
+
+
+def rebars_record(result: SurveyResult) -> dict[str, Any]:
+    """Every line's reinforcement bars in the site frame (the mesh, which pipes.json does not hold)."""
+    bars = []
+    for lr in result.lines:
+        for bar in lr.section.rebars:
+            x, y, _ = (float(c) for c in lr.bscan.position_at(bar.x_m))
+            bars.append({"line": lr.line, "along_m": round(bar.x_m, 4), "x_m": round(x, 4), "y_m": round(y, 4),
+                         "depth_m": round(bar.depth_m, 4), "confidence": round(bar.score, 3)})
+    return {"frame": "site (x forward, y left, z up), metres; depth below the surface to the bar's centre",
+            "method": "interpretation chain: evenly spaced reflectors at one cover on a line", "rebars": bars}
 
 
 def write_survey_outputs(
@@ -45,6 +58,8 @@ def write_survey_outputs(
     written.append(out_dir / DENSE_PLY)
     write_pipes_json(out_dir / PIPES_JSON, recon, meta)
     written.append(out_dir / PIPES_JSON)
+    write_json_atomic(out_dir / REBARS_JSON, rebars_record(result))
+    written.append(out_dir / REBARS_JSON)
 
     for lr in result.lines:
         bscan_png = out_dir / f"bscan_line{lr.line:02d}.png"
@@ -67,6 +82,7 @@ def write_survey_outputs(
         "velocity_estimated": result.velocity_estimated,
         "lines": len(result.lines),
         "pipes_found": len(recon.pipes),
+        "rebars_found": sum(len(lr.section.rebars) for lr in result.lines),
         "sparse_points": len(result.sparse),
         "dense_points": len(recon.dense),
         "timings_s": result.timings_s,

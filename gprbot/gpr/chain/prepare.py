@@ -18,7 +18,7 @@ from scipy import signal
 from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, check_bscan
 from gprbot.gpr.migration import resample_uniform
-from gprbot.gpr.preprocess import BACKGROUND_WINDOW_M, dewow, remove_background, remove_gain
+from gprbot.gpr.preprocess import BACKGROUND_WINDOW_M, DEWOW, dewow, remove_background, remove_gain
 from gprbot.gpr.traveltime import C_M_PER_NS
 
 FloatArray = NDArray[np.float64]
@@ -128,7 +128,8 @@ def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
     if q > 1:
         data = np.asarray(signal.resample_poly(data, 1, q, axis=1), dtype=np.float32)
         raw = replace(raw, dt_ns=raw.dt_ns * q)
-    dewowed = np.asarray(dewow(data, raw.dt_ns, gpr.centre_frequency_mhz), dtype=np.float64)
+    dewowed = np.asarray(data if DEWOW in raw.processing else dewow(data, raw.dt_ns, gpr.centre_frequency_mhz),
+                         dtype=np.float64)
     direct_ns, polarity = _direct_wave(np.median(dewowed, axis=0), raw.dt_ns)
     if math.isfinite(raw.t0_ns):
         t0, method = raw.t0_ns, "given"
