@@ -13,6 +13,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from gprbot.config import GprConfig, InterpretationConfig
 from gprbot.errors import GprbotError
 from gprbot.gpr.bscan import BScan
@@ -29,6 +31,8 @@ class Outcome:
     seconds: float
     note: str = ""
 
+
+LEGACY_MAX_LINE_M = 40.0
 
 Method = Callable[[BScan, GprConfig, "float | None"], Outcome]
 
@@ -56,6 +60,9 @@ def run_legacy(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
     from gprbot.gpr.preprocess import preprocess
 
     start = time.perf_counter()
+    if float(np.ptp(bscan.along_track_m())) > LEGACY_MAX_LINE_M:
+        # It resamples every line to a 1-5 cm grid and fits every hyperbola: minutes on a 100 m line.
+        return Outcome((), math.nan, velocity is None, 0.0, f"not run: line longer than {LEGACY_MAX_LINE_M:g} m")
     try:
         processed = preprocess(bscan, gpr)
         section = interpret_bscan(processed, gpr, _interp_config(bscan, velocity or 0.12), velocity)
