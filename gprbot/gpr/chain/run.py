@@ -118,6 +118,10 @@ def interpret(
         est: VelocityEstimate | None = estimate_velocity(prep, reflectors)
         if est is not None:
             v, sigma, source, how = est.v, est.sigma, "estimated", est.method
+            if est.shallow:
+                notes.append("the velocity rests on shallow targets only (within 6 cm of the surface), where the "
+                             "antenna's height and Tx-Rx offset govern the curves: check --height/--offset, "
+                             "or pass --velocity if it is known")
         else:
             v = fallback_velocity_m_per_ns or NOMINAL_VELOCITY
             sigma, source = math.nan, "fallback"

@@ -33,6 +33,7 @@ WINDOW_X_M = 0.05
 MAX_VOTERS = 8
 MIN_FLANK = 3
 MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
+SHALLOW_M = 0.06  # FDTD dev half: tops above ~5 cm voted 20-50 % off
 FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight
 
 
@@ -44,6 +45,7 @@ class VelocityEstimate:
     sigma: float
     n_used: int
     method: str
+    shallow: bool = False  # only targets within SHALLOW_M of the surface voted: the antenna geometry rules there
 
 
 def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatArray) -> FloatArray:
@@ -133,4 +135,5 @@ def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> V
     sigma_rel = max(spread / math.sqrt(n), 0.25 * step) if n > 1 else max(spread, step)
     how = (f"migration focus of {n} diffraction hyperbolas (weighted median)" if n > 1
            else "the migration focus of one diffraction hyperbola")
-    return VelocityEstimate(median, median * sigma_rel, n, how)
+    deepest = max(0.5 * median * r.candidate.t_ns for r in two_sided[:MAX_VOTERS])
+    return VelocityEstimate(median, median * sigma_rel, n, how, shallow=deepest < SHALLOW_M)
