@@ -43,6 +43,7 @@ class PreparedBScan:
     direct_polarity: float  # sign of the direct wave's main lobe
     antenna_height_m: float
     tx_rx_offset_m: float
+    decimation: int = 1  # time samples merged into one (anti-aliased) to bound the cost
 
     @property
     def period_ns(self) -> float:
@@ -146,4 +147,4 @@ def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
     noise = noise_level(cleaned[:, start:]) or float(np.std(cleaned)) or 1e-12
     env = np.abs(signal.hilbert(cleaned, axis=1))
     return PreparedBScan(cleaned, env, x, raw.dt_ns, float(t0), method, freq, noise, polarity,
-                         gpr.antenna_height_m, gpr.tx_rx_offset_m)
+                         gpr.antenna_height_m, gpr.tx_rx_offset_m, q)

@@ -107,6 +107,9 @@ def interpret(
     """Interpret one B-scan: the velocity given, else estimated from its hyperbolas, else the fallback."""
     notes: list[str] = []
     prep = prepare(bscan, gpr)
+    if prep.decimation > 1:
+        notes.append(f"time sampling decimated {prep.decimation}x to dt {prep.dt_ns:.4f} ns "
+                     f"({round(1000.0 / (prep.frequency_mhz * prep.dt_ns))} samples a period) to bound the cost")
     if prep.t0_method != "given":
         notes.append(f"time zero {prep.t0_ns:.2f} ns from the {prep.t0_method}")
     candidates = apex_candidates(prep)
