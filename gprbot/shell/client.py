@@ -8,9 +8,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
+import math
 import os
 import shlex
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 from types import TracebackType
@@ -22,6 +24,8 @@ from gprbot.shell.protocol import PayloadChunk, ReplyReader, ServerEvent, Server
 DEFAULT_PORT = 7878
 _Item = TypeVar("_Item", ServerReply, PayloadChunk)
 REPLY_TIMEOUT_S = 30.0
+
+PULL_RATE_PER_S = 10.0  # the shell allows 20 commands/s a session (shell.rate_per_s); pull at half that
 
 
 class ShellCommandError(GprbotError):
@@ -182,10 +186,17 @@ async def pull_run(host: str, port: int, run: str, dest: Path, token: str | None
         if token is not None:
             await conn.authenticate(token)
         listing = await conn.check(f"files {_quote(run)}")
+        last = -math.inf
         for line in listing.body:
             size_text, _, name = line.partition(" ")
             if not size_text.isdigit():
                 raise ProtocolError(f"bad `files` line from the server: {line!r}")
             relative = safe_relative(name)
+            # Stay under the shell's per-session command rate: a run has dozens of small files
+            # (the exported survey lines), which would otherwise be asked for faster than it allows.
+            wait = last + 1.0 / PULL_RATE_PER_S - time.monotonic()
+            if wait > 0:
+                await asyncio.sleep(wait)
+            last = time.monotonic()
             written.append(await conn.pull_file(run, name, dest.joinpath(*relative.parts)))
     return written
