@@ -30,7 +30,7 @@ COARSE_STEPS = 13
 FINE_STEPS = 5
 APERTURE_DEG = 50.0
 WINDOW_X_M = 0.05
-MAX_VOTERS = 8
+MAX_VOTERS = 6
 MIN_FLANK = 3
 MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
 SHALLOW_M = 0.06  # FDTD dev half: tops above ~5 cm voted 20-50 % off
@@ -60,7 +60,7 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     half = max(2, round(WINDOW_X_M / prep.dx_m))
     tan_ap = math.tan(math.radians(APERTURE_DEG))
     v = np.asarray(velocities, dtype=np.float64)[:, None, None]  # (velocities, lags, depths)
-    offsets = np.arange(-0.03, 0.04, 0.002)
+    offsets = np.arange(-0.03, 0.04, 0.003)
     z = np.maximum(0.002, 0.5 * v * apex_t_ns + offsets[None, None, :])
     reach = math.ceil(float(z.max()) * tan_ap / prep.dx_m)
     lags = np.arange(-reach, reach + 1)
