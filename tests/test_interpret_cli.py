@@ -1,0 +1,38 @@
+"""`gprbot interpret FILE` end to end on a real file: the chain's detections.json, pictures and report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from gprbot.cli import main
+from validation.cases import REAL_DATA
+
+SSMINI = REAL_DATA / "gssi_ssmini_rebar_ietgpr" / "File____002.DZT"
+BARS_M = (0.08, 0.30, 0.48, 0.69, 0.88, 1.11, 1.30)  # the README's positions, ±2 cm
+
+
+@pytest.mark.skipif(not SSMINI.exists(), reason="shared/data/real is not beside the checkout")
+def test_interpret_reports_the_mesh_as_rebars_and_how_the_velocity_was_found(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["interpret", str(SSMINI), "--out", str(tmp_path)]) == 0
+    report = capsys.readouterr().out
+    assert "rebar" in report and "velocity" in report
+    result = json.loads((tmp_path / "detections.json").read_text())
+    bars = [b["x_m"] for b in result["rebars"]]
+    assert all(any(abs(b - x) <= 0.02 for b in bars) for x in BARS_M)
+    assert len(result["detections"]) <= 1  # pipes: at most one false one on this line
+    assert result["velocity_source"] == "estimated" and "migration focus" in result["velocity_method"]
+    assert result["time_zero_from"] == "direct-wave envelope peak"
+    for key in ("cover_m", "radius_sigma_m", "radius_supported", "fill_hint", "confidence"):
+        assert key in result["rebars"][0]
+    assert (tmp_path / "bscan.png").stat().st_size > 0 and (tmp_path / "section.png").stat().st_size > 0
+
+
+@pytest.mark.skipif(not SSMINI.exists(), reason="shared/data/real is not beside the checkout")
+def test_interpret_refuses_an_impossible_antenna_geometry(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["interpret", str(SSMINI), "--height", "-0.1", "--out", str(tmp_path)]) == 2
+    assert "--height" in capsys.readouterr().err
