@@ -130,7 +130,9 @@ def interpret_file(
     """
     cfg = config or load_config()
     bscan, rg = file_bscan(path, channel, spacing_m, allow_partial)
-    notes: list[str] = list(rg.warnings)
+    # A reader's advice to pass an option the user has passed is noise.
+    given = {"--spacing": spacing_m, "--frequency": frequency_mhz, "--velocity": velocity}
+    notes = [w for w in rg.warnings if not any(opt in w and value is not None for opt, value in given.items())]
     gpr, geometry_origin = _antenna_geometry(gpr_config_for(rg, cfg.gpr, frequency_mhz), height_m, offset_m)
     eps_r = float(rg.header.get("eps_r") or 0.0) if rg.source_format == "dzt" else 0.0
     fallback = velocity_from_eps(eps_r) if eps_r > 1.0 else None
