@@ -24,12 +24,17 @@ def leg_time(height: float, horiz: FloatArray, depth: FloatArray, v: FloatArray 
     a dipole 1-4 cm up fit this within 20-40 ps rms, straight rays from the footprint 100-450 ps). An
     antenna at height 0 is a source in the surface: straight rays (FDTD: 28 ps rms).
     """
-    c = C_M_PER_NS
     d = np.maximum(np.asarray(depth, dtype=np.float64), 1e-6)
     D = np.abs(np.asarray(horiz, dtype=np.float64))
     if height <= 1e-6:
         return np.asarray(np.sqrt(D * D + d * d) / v)
-    h = height
+    a = _bend_point(height, D, d, v)
+    return np.asarray(np.sqrt(height * height + a * a) / C_M_PER_NS + np.sqrt(d * d + (D - a) ** 2) / v)
+
+
+def _bend_point(h: float, D: FloatArray, d: FloatArray, v: FloatArray | float) -> FloatArray:
+    """Horizontal distance from the antenna to where the ray enters the ground (Fermat, Newton's method)."""
+    c = C_M_PER_NS
     a = D * h * c / (v * d + h * c)  # paraxial Snell: a / (h c) = (D - a) / (d v)
     for _ in range(_NEWTON_STEPS):
         ra = np.sqrt(h * h + a * a)
@@ -37,7 +42,7 @@ def leg_time(height: float, horiz: FloatArray, depth: FloatArray, v: FloatArray 
         g = a / (c * ra) - (D - a) / (v * rb)
         gp = h * h / (c * ra**3) + d * d / (v * rb**3)
         a = np.clip(a - g / gp, 0.0, D)
-    return np.asarray(np.sqrt(h * h + a * a) / c + np.sqrt(d * d + (D - a) ** 2) / v)
+    return np.asarray(a)
 
 
 def cylinder_time(
@@ -70,16 +75,7 @@ def _leg_with_gradient(
     d = np.maximum(np.asarray(depth, dtype=np.float64), 1e-6)
     signed = np.asarray(horiz, dtype=np.float64)
     D = np.abs(signed)
-    a = np.zeros_like(D)
-    if height > 1e-6:
-        h = height
-        a = D * h * c / (v * d + h * c)
-        for _ in range(_NEWTON_STEPS):
-            ra = np.sqrt(h * h + a * a)
-            rb = np.sqrt(d * d + (D - a) ** 2)
-            g = a / (c * ra) - (D - a) / (v * rb)
-            gp = h * h / (c * ra**3) + d * d / (v * rb**3)
-            a = np.clip(a - g / gp, 0.0, D)
+    a = _bend_point(height, D, d, v) if height > 1e-6 else np.zeros_like(D)
     rb = np.sqrt(d * d + (D - a) ** 2)
     t = np.sqrt(max(height, 0.0) ** 2 + a * a) / c + rb / v
     return t, np.sign(signed) * (D - a) / (v * rb), d / (v * rb), -rb / (np.asarray(v) ** 2)
