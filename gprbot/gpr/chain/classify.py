@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -185,3 +185,9 @@ def classify(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> 
         out.append(ClassifiedDetection(f.x0_m, f.depth_m, f.radius_m, f.sigma_radius_m, supported,
                                        "rebar" if k in bars else "pipe", contrast, _confidence(prep, r, f), f, r))
     return tuple(out)
+
+
+def relabel_rows(detections: Sequence[ClassifiedDetection]) -> tuple[ClassifiedDetection, ...]:
+    """The detections with their pipe/rebar kind decided again on this set (after some were dropped)."""
+    bars = _rebar_rows([d.fit for d in detections])
+    return tuple(replace(d, kind="rebar" if k in bars else "pipe") for k, d in enumerate(detections))

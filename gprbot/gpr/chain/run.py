@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
-from gprbot.gpr.chain.classify import ClassifiedDetection, classify
+from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
@@ -136,6 +136,6 @@ def interpret(
     detections = classify(prep, reflectors, v)
     depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
     image, z = migrated(prep, v, max(depth, 0.05))
-    detections = focused(detections, image, prep.x_m, z, v / (prep.frequency_mhz / 1000.0))
+    detections = relabel_rows(focused(detections, image, prep.x_m, z, v / (prep.frequency_mhz / 1000.0)))
     section = _section(prep, detections, v, image, z, source == "estimated")
     return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))
