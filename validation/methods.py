@@ -78,10 +78,10 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Ou
     from gprbot.gpr.preprocess import preprocess
     from gprbot.infer.pipeline import migrationnet_interpreter
 
-    note = ""
+    note, estimated = "", False
     if velocity is None:
         chain = run_chain(bscan, gpr, None)
-        velocity, note = chain.velocity, "velocity from the chain"
+        velocity, note, estimated = chain.velocity, "velocity from the chain", chain.velocity_estimated
     start = time.perf_counter()
     try:
         net = migrationnet_interpreter(InterpretationConfig().migrationnet_model, 2)
@@ -90,7 +90,7 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Ou
         return Outcome((), velocity, False, time.perf_counter() - start, f"failed: {exc}")
     seconds = time.perf_counter() - start
     found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in section.detections)
-    return Outcome(found, velocity, False, seconds, note)
+    return Outcome(found, velocity, estimated, seconds, note)
 
 
 METHODS: dict[str, Method] = {"chain": run_chain, "legacy": run_legacy, "migrationnet": run_migrationnet}
