@@ -37,7 +37,8 @@ def test_input_text_has_the_commands_of_a_2d_bscan() -> None:
     text = input_text(_scene())
     for cmd in ("#domain_mode: TM", "#domain:", "#dx_dy_dz:", "#time_window:", "#waveform: ricker 1 9e+08 src",
                 "#hertzian_dipole: z", "#rx:", "#src_steps: 0.02 0 0", "#rx_steps: 0.02 0 0",
-                "#add_dispersion_debye: 1 3 3e-10 concrete", "soil", "water"):
+                "#add_dispersion_debye: 1 3 3e-10 concrete", "#add_dispersion_debye: 1 75.2 9.231e-12 water",
+                "#material: 15 0.01 1 0 soil"):
         assert cmd in text, cmd
     cylinders = [line for line in text.splitlines() if line.startswith("#cylinder:")]
     assert [c.split()[-1] for c in cylinders] == ["pec", "pvc", "water", "pec"]  # rebar, PVC shell + bore, metal

@@ -17,7 +17,8 @@ from validation.fdtd.scenes import C_M_PER_NS, Scene
 
 PML_CELLS = 10
 DX_CHOICES_UM = (2500, 2000, 1500, 1250, 1000)
-EPS_PVC, EPS_WATER, SIGMA_WATER = 3.0, 80.0, 0.01
+EPS_PVC, EPS_WATER, SIGMA_WATER = 3.0, 80.1, 0.05  # water: static permittivity, tap-water conductivity
+WATER_EPS_INF, WATER_TAU_S = 4.9, 9.231e-12  # water's Debye pole, as in gprMax's materials.py
 EPS_SOIL, SIGMA_SOIL = 15.0, 0.01
 LATERAL_MARGIN_M = 0.06
 AIR_ABOVE_ANTENNA_M = 0.03
@@ -130,8 +131,9 @@ def input_text(scene: Scene) -> str:
     fills = {p.fill for p in scene.pipes}  # only materials in use: gprMax checks the grid against every one
     if fills & {"pvc-air", "pvc-water"}:
         lines.append(f"#material: {EPS_PVC:g} 0 1 0 pvc")
-    if "pvc-water" in fills:
-        lines.append(f"#material: {EPS_WATER:g} {SIGMA_WATER:g} 1 0 water")
+    if "pvc-water" in fills:  # single-pole Debye water (gprMax's own constants) plus tap-water ionic loss
+        lines.append(f"#material: {WATER_EPS_INF:g} {SIGMA_WATER:g} 1 0 water")
+        lines.append(f"#add_dispersion_debye: 1 {EPS_WATER - WATER_EPS_INF:g} {WATER_TAU_S:g} water")
     if scene.slab_bottom_m is not None and scene.below == "soil":
         lines.append(f"#material: {EPS_SOIL:g} {SIGMA_SOIL:g} 1 0 soil")
     if c.debye is not None:
