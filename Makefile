@@ -11,7 +11,7 @@ demo: bootstrap
 	$(BIN)/gprbot demo --out runs/demo
 
 test: bootstrap
-	$(BIN)/ruff check gprbot tests benchmarks tools training
+	$(BIN)/ruff check gprbot tests benchmarks tools training validation
 	$(BIN)/mypy
 	$(BIN)/pytest
 
