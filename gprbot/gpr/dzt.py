@@ -13,8 +13,6 @@ file, else the DZX's user marks.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -24,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.atomic_files import write_bytes_atomic
 from gprbot.errors import DataFormatError
 from gprbot.gpr.dzt_header import (
     HEADER_SIZE,
@@ -335,7 +334,7 @@ def write_dzt(
     target = Path(path)
     one_header = pack_header(header, file_name=target.stem)
     scans = np.ascontiguousarray(stored.transpose(2, 0, 1))  # (traces, channels, samples)
-    _write_atomically(target, one_header * header.channels + scans.tobytes())
+    write_bytes_atomic(target, one_header * header.channels + scans.tobytes())
 
 
 def _channel_stack(data: Sequence[NDArray[Any]] | NDArray[Any]) -> NDArray[Any]:
@@ -415,17 +414,3 @@ def _check_write_args(
 def _fits_float32(value: float) -> bool:
     """Whether `value` is finite and within float32 range, as header fields are stored."""
     return math.isfinite(value) and abs(value) <= float(np.finfo(np.float32).max)
-
-
-def _write_atomically(target: Path, payload: bytes) -> None:
-    """Write `payload` to a temp file beside `target`, fsync it, then rename it over `target`."""
-    fd, temp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as temp:
-            temp.write(payload)
-            temp.flush()
-            os.fsync(temp.fileno())
-        os.replace(temp_name, target)
-    except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
-        raise

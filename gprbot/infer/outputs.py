@@ -1,17 +1,16 @@
-"""Result files that survive a crash: atomic writes (temp file + fsync + os.replace) and pipes.json."""
+"""Result files that survive a crash (written through gprbot.atomic_files): JSON and pipes.json."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
+from gprbot.atomic_files import write_bytes_atomic
 from gprbot.errors import DataFormatError
 from gprbot.infer.completion import PipeModel, Reconstruction, pipe_colors
 from gprbot.infer.polyline import polyline_length
@@ -20,32 +19,6 @@ PIPES_FORMAT = "gprbot-pipes"
 PIPES_VERSION = 1
 SITE_FRAME = "site: x forward along the survey lines, y left, z up (REP-103); ground surface at z = 0"
 _DECIMALS = 6  # µm: far below any measurement, keeps the file readable
-
-
-@contextlib.contextmanager
-def atomic_open(path: str | os.PathLike[str]) -> Iterator[IO[bytes]]:
-    """Open a temp file beside `path` for binary writing; it replaces `path` only if the block succeeds.
-
-    A reader (or a crash) never sees a half-written file: either the old file or the complete new one.
-    """
-    target = Path(path)
-    fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            yield handle
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp_name, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp_name)
-        raise
-
-
-def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write bytes to path atomically."""
-    with atomic_open(path) as handle:
-        handle.write(data)
 
 
 def _json_default(value: Any) -> Any:

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.atomic_files import atomic_open
 from gprbot.errors import DataFormatError
-from gprbot.infer.outputs import atomic_open
 
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",

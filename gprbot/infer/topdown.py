@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.atomic_files import write_bytes_atomic
 from gprbot.infer.completion import Reconstruction, pipe_colors
-from gprbot.infer.outputs import write_bytes_atomic
 
 MAP_SIDE_PX = 900  # the longer side of the map area
 MARGIN_PX = 56

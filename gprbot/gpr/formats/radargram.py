@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,6 +11,7 @@ from typing import Any, BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.atomic_files import atomic_open
 from gprbot.errors import DataFormatError
 
 # What a real GPR can produce; a header outside these is corrupt (or not a GPR file).
@@ -152,16 +151,8 @@ def sibling(path: Path, suffixes: tuple[str, ...]) -> Path | None:
 def write_atomically(target: Path, fill: Callable[[BinaryIO], None]) -> None:
     """Write a file through a temp file beside `target`, fsync it, then rename it over `target`."""
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, temp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as temp:
-            fill(temp)
-            temp.flush()
-            os.fsync(temp.fileno())
-        os.replace(temp_name, target)
-    except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
-        raise
+    with atomic_open(target) as handle:
+        fill(handle)
 
 
 def integer_counts(samples: NDArray[np.float32], bits: int) -> tuple[NDArray[np.int64], float]:
