@@ -148,7 +148,3 @@ def fit_cylinders(
                              math.sqrt(float(np.mean(rb * rb))) * sigma_t, int(m.sum()))
     return out
 
-
-def fit_cylinder(prep: PreparedBScan, picks: Picks, v: float, *, free_velocity: bool) -> CylinderFit | None:
-    """Fit one hyperbola's picks (see `fit_cylinders`)."""
-    return fit_cylinders(prep, [picks], v, free_velocity=free_velocity)[0]

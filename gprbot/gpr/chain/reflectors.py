@@ -60,7 +60,7 @@ def _first_curve(
     zc = centre_depths(table, cand.t_ns, TRIAL_RADII)
     samples = curve_samples(table, zc, TRIAL_RADII, prep.t0_ns, prep.dt_ns)
     half = max(1, round(0.25 * prep.period_ns / prep.dt_ns))
-    s = semblance(prep, cand.column, samples, table.lags_m, aperture_mask(table, zc, prep.dx_m), half)
+    s = semblance(prep, cand.column, samples, table.lag_traces, aperture_mask(table, zc, prep.dx_m), half)
     s = np.where(np.isfinite(zc), s, 0.0)
     i, j = np.unravel_index(int(np.argmax(s)), s.shape)
     if not np.isfinite(zc[i, j]):

@@ -26,10 +26,10 @@ MIN_SUPPORT = 7  # traces a curve must cross for its semblance to count in full
 
 @dataclass(frozen=True)
 class TravelTable:
-    """Two-way times (nv, nk, nz) to a point at depth z_m[j] from an antenna lags_m[k] along the line."""
+    """Two-way times (nv, nk, nz) to a point at depth z_m[j] from an antenna lag_traces[k] grid steps along the line."""
 
     velocities: FloatArray
-    lags_m: FloatArray
+    lag_traces: FloatArray
     z_m: FloatArray
     t_ns: FloatArray
 
@@ -51,7 +51,7 @@ def travel_table(prep: PreparedBScan, velocities: FloatArray, z_max_m: float, ma
 def centre_depths(table: TravelTable, apex_t_ns: float, radii: FloatArray) -> FloatArray:
     """Centre depth (nv, nr) whose apex time matches `apex_t_ns` for each trial velocity and radius (NaN: none)."""
     out = np.full((len(table.velocities), len(radii)), np.nan)
-    zero = int(np.argmin(np.abs(table.lags_m)))
+    zero = int(np.argmin(np.abs(table.lag_traces)))
     for i, v in enumerate(table.velocities):
         column = table.t_ns[i, zero]
         target = apex_t_ns + 2.0 * radii / v
@@ -99,6 +99,6 @@ def semblance(
 def aperture_mask(table: TravelTable, zc: FloatArray, dx_m: float, min_lags: int = 2) -> NDArray[np.bool_]:
     """Lags (..., nk) within the aperture angle of a centre at depth zc (always the nearest min_lags)."""
     reach = np.tan(np.radians(APERTURE_DEG)) * np.nan_to_num(zc, nan=0.0)[..., None]
-    horiz = np.abs(table.lags_m) * dx_m
-    nearest = np.abs(table.lags_m) <= min_lags * max(1.0, table.lags_m[1] - table.lags_m[0])
+    horiz = np.abs(table.lag_traces) * dx_m
+    nearest = np.abs(table.lag_traces) <= min_lags * max(1.0, table.lag_traces[1] - table.lag_traces[0])
     return np.asarray((horiz <= reach) | nearest)
