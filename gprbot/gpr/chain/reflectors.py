@@ -31,6 +31,7 @@ from gprbot.gpr.chain.semblance import (
 TRIAL_VELOCITIES = np.geomspace(0.04, 0.25, 24)
 TRIAL_RADII = np.array([0.0, 0.012, 0.03, 0.06])
 SAME_TARGET_M = 0.03
+SAME_TARGET_RADIUS_CAP_M = 0.02
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,7 @@ def _first_curve(
 
 def _same_target(a: CylinderFit, b: CylinderFit) -> bool:
     """Whether two fits describe one target (their tops within a few centimetres)."""
-    near = abs(a.x0_m - b.x0_m) <= SAME_TARGET_M + max(a.radius_m, b.radius_m)
+    near = abs(a.x0_m - b.x0_m) <= SAME_TARGET_M + min(max(a.radius_m, b.radius_m), SAME_TARGET_RADIUS_CAP_M)
     return near and abs(a.top_m - b.top_m) <= SAME_TARGET_M
 
 
