@@ -127,3 +127,22 @@ def test_interpret_without_hyperbolas_says_the_velocity_was_not_estimated() -> N
     assert result.detections == ()
     assert result.velocity_source == "fallback"
     assert any("velocity not estimated" in n for n in result.notes)
+
+
+def test_a_row_with_a_line_end_artefact_is_still_a_row() -> None:
+    row = [_fit(0.29 + 0.15 * k, 0.044, 0.0) for k in range(4)]
+    artefact = [_fit(0.048, 0.048, 0.0)]  # 1.6 spacings before the first bar: no bar there
+    assert _rebar_rows(artefact + row) == {1, 2, 3, 4}
+
+
+def test_echo_spots_ringing_multiple_and_crossing_flanks() -> None:
+    from gprbot.gpr.chain.spots import Spot, is_echo_spot
+
+    wavelength = 0.1
+    primary = [(0.5, 0.1, 0.02)]
+    assert is_echo_spot(Spot(0.5, 0.16, 1.0, 1.0, 0), primary, wavelength)  # ringing right under it
+    assert is_echo_spot(Spot(0.505, 0.2, 1.0, 1.0, 0), primary, wavelength)  # twice its depth
+    assert not is_echo_spot(Spot(0.7, 0.16, 1.0, 1.0, 0), primary, wavelength)  # beside it: a target
+    pair = [(0.4, 0.2, 0.0), (0.5, 0.2, 0.0)]
+    assert is_echo_spot(Spot(0.45, 0.25, 1.0, 1.0, 0), pair, wavelength)  # under two crossing flanks
+    assert not is_echo_spot(Spot(0.45, 0.2, 1.0, 1.0, 0), pair, wavelength)  # between them at their depth

@@ -63,3 +63,20 @@ def test_fdtd_slab_without_pipes_gives_nothing() -> None:
     row = run_case(_case("no_pipe_2000"), "chain", "estimated")
     assert row.outcome.found == ()
     assert not row.outcome.velocity_estimated  # nothing to measure it on, and it says so
+
+
+@pytest.mark.skipif(not REAL_DATA.exists(), reason="shared/data/real is not beside the checkout")
+def test_real_structurescan_line_with_two_rows_gives_all_five_targets() -> None:
+    # Each shallow bar's hyperbola overlaps a deeper one's 6 cm beside it: the picks merge them, the
+    # migrated image's spots separate them.
+    row = run_case(_case("ssmini File____001"), "chain", "estimated")
+    hits = match(row.outcome.found, row.case.targets, row.case.tolerance_m)
+    assert len(hits) == 5
+    assert len(row.outcome.found) - len(hits) <= 1
+
+
+def test_fdtd_dev_pipe_under_a_rebar_mesh_is_found_and_the_mesh_is_rebar() -> None:
+    row = run_case(_case("rebar_pipe_1200"), "chain", "given")
+    assert row.score.pipes_within == row.score.pipes == 1
+    assert row.score.rebars_found >= 4
+    assert row.score.false_pipes <= 1

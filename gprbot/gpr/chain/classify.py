@@ -129,6 +129,32 @@ def _on_other_flanks(prep: PreparedBScan, r: Reflector, stronger: Sequence[Cylin
     return float(np.mean(near)) >= ON_FLANK_FRACTION
 
 
+def _regular(xs: Sequence[float]) -> bool:
+    """Whether positions are evenly spaced, allowing for a missing bar and hand-placement scatter."""
+    gaps = np.diff(xs)
+    if len(gaps) == 0 or not np.all(gaps > 0.03):
+        return False
+    # Bars are placed by hand: spacing varies by ±20 % around the nominal one, and one may be missing.
+    base = float(np.median(gaps))
+    if np.count_nonzero(gaps < 1.5 * base) < len(gaps) / 2:
+        return False
+    base = float(np.median(gaps[gaps < 1.5 * base]))
+    multiples = gaps / base
+    return bool(np.all(np.abs(multiples - np.round(multiples)) <= ROW_SPACING_TOLERANCE)
+                and np.all(np.round(multiples) >= 1) and np.max(multiples) <= 3.5)
+
+
+def _regular_run(row: list[int], fits: Sequence[CylinderFit]) -> list[int]:
+    """The row, or the row without one or two members at its ends (a line-end artefact, a pipe at the
+    same cover), whichever is evenly spaced first; [] when none is."""
+    for drop in range(3):
+        for head in range(drop + 1):
+            run = row[head: len(row) - (drop - head)]
+            if len(run) >= ROW_MIN_BARS and _regular([fits[j].x0_m for j in run]):
+                return run
+    return []
+
+
 def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
     """Indices of fits that form rebar rows: evenly spaced reflectors at one cover (a bar may be missing).
 
@@ -141,22 +167,10 @@ def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
         cover = fits[i].top_m
         tol = max(ROW_DEPTH_TOLERANCE_M, ROW_DEPTH_RELATIVE * cover)
         row = sorted((j for j in range(len(fits)) if abs(fits[j].top_m - cover) <= tol), key=lambda j: fits[j].x0_m)
-        if len(row) < ROW_MIN_BARS:
-            continue
-        gaps = np.diff([fits[j].x0_m for j in row])
-        if not np.all(gaps > 0.03):
-            continue
-        # Bars are placed by hand: spacing varies by ±20 % around the nominal one, and one may be missing.
-        base = float(np.median(gaps))
-        if np.count_nonzero(gaps < 1.5 * base) < len(gaps) / 2:
-            continue
-        base = float(np.median(gaps[gaps < 1.5 * base]))
-        multiples = gaps / base
-        regular = bool(np.all(np.abs(multiples - np.round(multiples)) <= ROW_SPACING_TOLERANCE)
-                       and np.all(np.round(multiples) >= 1) and np.max(multiples) <= 3.5)
-        thin = all(fits[j].radius_m - fits[j].sigma_radius_m <= BAR_MAX_RADIUS_M for j in row)  # or not measurable
-        if regular and (len(row) >= ROW_ANY_RADIUS_BARS or thin):
-            bars.update(row)
+        run = _regular_run(row, fits)
+        thin = all(fits[j].radius_m - fits[j].sigma_radius_m <= BAR_MAX_RADIUS_M for j in run)  # or not measurable
+        if run and (len(run) >= ROW_ANY_RADIUS_BARS or thin):
+            bars.update(run)
     return bars
 
 

@@ -1,4 +1,5 @@
-"""The interpretation chain, one B-scan end to end: prepare → candidates → reflectors → velocity → classify → section.
+"""The interpretation chain, one B-scan end to end: prepare → candidates → reflectors → velocity → classify →
+spots of the migrated image → section.
 
 Each stage is a pure function with a typed result handed to the next (see the stage modules); this
 module only strings them together and draws the cross-section. Nothing here depends on how the data
@@ -20,6 +21,7 @@ from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
+from gprbot.gpr.chain.spots import find_spots, spot_detections
 from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
 from gprbot.gpr.migration import depth_axis, envelope, kirchhoff_migrate
 
@@ -136,6 +138,8 @@ def interpret(
     detections = classify(prep, reflectors, v)
     depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
     image, z = migrated(prep, v, max(depth, 0.05))
-    detections = relabel_rows(focused(detections, image, prep.x_m, z, v / (prep.frequency_mhz / 1000.0)))
+    detections = focused(detections, image, prep.x_m, z, v / (prep.frequency_mhz / 1000.0))
+    spots = find_spots(prep, envelope(image), z, v)
+    detections = relabel_rows(detections + spot_detections(prep, spots, detections, v))
     section = _section(prep, detections, v, image, z, source == "estimated")
     return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))
