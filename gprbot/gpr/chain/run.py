@@ -21,7 +21,7 @@ from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
-from gprbot.gpr.chain.spots import find_spots, spot_detections
+from gprbot.gpr.chain.spots import find_spots, spot_detections, without_echoes_of
 from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
 from gprbot.gpr.migration import depth_axis, envelope, kirchhoff_migrate
 
@@ -140,6 +140,8 @@ def interpret(
     image, z = migrated(prep, v, max(depth, 0.05))
     detections = focused(detections, image, prep.x_m, z, v / (prep.frequency_mhz / 1000.0))
     spots = find_spots(prep, envelope(image), z, v)
-    detections = relabel_rows(detections + spot_detections(prep, spots, detections, v))
+    wavelength = v / (prep.frequency_mhz / 1000.0)
+    extra = spot_detections(prep, spots, detections, v)
+    detections = relabel_rows(without_echoes_of(detections, extra, wavelength) + extra)
     section = _section(prep, detections, v, image, z, source == "estimated")
     return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))

@@ -35,6 +35,7 @@ MIN_SPOT_SHARE = 0.02  # of the image's brightest spot: weaker is migration nois
 COMPACT_RATIO = 0.6  # a wavelength to one side the envelope falls below this share of the spot (a layer doesn't)
 RINGING_WAVELENGTHS = 0.75  # an antenna rings about one and a half periods: that far under a spot is its echo
 ECHO_X_M = 0.03
+CROSSING_WAVELENGTHS = 0.5  # a V of crossing flanks migrates to a smear about this far around the crossing
 MAX_SPOTS_PER_M = 10
 EXPLAINED_M = 0.03  # a spot this near a detection's top (plus its radius in x) is that detection
 AGREE_PERIODS = 0.25  # a seeded fit whose top lies within this (as depth) of the spot measures its radius
@@ -93,19 +94,42 @@ def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v
 def is_echo_spot(spot: Spot, stronger: Sequence[tuple[float, float, float]], wavelength: float) -> bool:
     """Whether a spot is an echo of stronger targets (x, top, radius): ringing or a pipe's bottom under one,
     its surface multiple, or the crossing of two neighbours' flanks under and between them."""
+    return _is_echo_of(spot, stronger, wavelength) or _under_crossing_flanks(spot, stronger, wavelength)
+
+
+def _is_echo_of(spot: Spot, stronger: Sequence[tuple[float, float, float]], wavelength: float) -> bool:
+    """Whether a spot lies under one of the targets within its ringing or bottom delay, or at twice its depth."""
     for x, top, radius in stronger:
-        if spot.top_m <= top or abs(spot.x_m - x) > ECHO_X_M + radius:
+        if spot.top_m <= top or abs(spot.x_m - x) > ECHO_X_M:  # a bottom or a ringing lies right under the centre
             continue
         if spot.top_m - top <= max(RINGING_WAVELENGTHS * wavelength, 6.0 * radius):
             return True
         if abs(spot.top_m - 2.0 * top) <= 0.15 * top + 0.005:
             return True
+    return False
+
+
+def _crossing(xl: float, zl: float, xr: float, zr: float) -> tuple[float, float]:
+    """Where two point diffractors' zero-offset curves cross: along-track x and the depth it migrates near."""
+    lo, hi = xl, xr
+    for _ in range(40):  # the difference of the two distances grows monotonically from xl to xr
+        mid = 0.5 * (lo + hi)
+        if np.hypot(mid - xl, zl) < np.hypot(mid - xr, zr):
+            lo = mid
+        else:
+            hi = mid
+    x = 0.5 * (lo + hi)
+    return x, float(np.hypot(x - xl, zl))
+
+
+def _under_crossing_flanks(spot: Spot, stronger: Sequence[tuple[float, float, float]], wavelength: float) -> bool:
+    """Whether a spot lies where two neighbours' flanks cross (a V, deeper than both tops, between them)."""
     left = [(x, top) for x, top, _ in stronger if x < spot.x_m and top < spot.top_m]
     right = [(x, top) for x, top, _ in stronger if x > spot.x_m and top < spot.top_m]
     for xl, tl in left:
         for xr, tr in right:
-            # Two flanks cross where the times agree: between the tops, deeper than both.
-            if xr - xl <= 4.0 * spot.top_m and spot.top_m > max(tl, tr) + 0.25 * wavelength:
+            x, z = _crossing(xl, tl, xr, tr)
+            if abs(spot.x_m - x) <= ECHO_X_M and abs(spot.top_m - z) <= CROSSING_WAVELENGTHS * wavelength:
                 return True
     return False
 
@@ -167,9 +191,9 @@ def spot_detections(prep: PreparedBScan, spots: Sequence[Spot], detections: Sequ
                     v: float) -> tuple[ClassifiedDetection, ...]:
     """Detections at the spots no detection explains and that are no echo of a stronger target."""
     wavelength = v / (prep.frequency_mhz / 1000.0)
-    known = [(d.x_m, d.fit.top_m, d.radius_m) for d in detections]
+    known = [(d.x_m, d.fit.top_m, _fitted_radius(d)) for d in detections]
     out: list[ClassifiedDetection] = []
-    for spot in spots:
+    for spot in sorted(spots, key=lambda s: s.top_m):  # shallow first: an echo is judged after its primary
         if any(abs(spot.x_m - x) <= EXPLAINED_M + r and abs(spot.top_m - top) <= EXPLAINED_M for x, top, r in known):
             continue
         if is_echo_spot(spot, known, wavelength):
@@ -177,6 +201,19 @@ def spot_detections(prep: PreparedBScan, spots: Sequence[Spot], detections: Sequ
         det = _spot_detection(prep, spot, v)
         if det is None:
             continue
-        known.append((det.x_m, det.fit.top_m, det.radius_m))
+        known.append((det.x_m, det.fit.top_m, _fitted_radius(det)))
         out.append(det)
     return tuple(out)
+
+
+def _fitted_radius(d: ClassifiedDetection) -> float:
+    """The radius the detection's curve was fitted with (kept for echo windows even where not reported)."""
+    return d.reflector.fit.radius_m if d.reflector.fit is not None else d.radius_m
+
+
+def without_echoes_of(detections: Sequence[ClassifiedDetection], tops: Sequence[ClassifiedDetection],
+                      wavelength: float) -> tuple[ClassifiedDetection, ...]:
+    """The detections less those that are echoes of one of `tops` (its ringing, bottom or multiple): a
+    hyperbola-path detection can be the echo of a top that only the migrated image resolved."""
+    primaries = [(t.x_m, t.fit.top_m, _fitted_radius(t)) for t in tops]
+    return tuple(d for d in detections if not _is_echo_of(Spot(d.x_m, d.fit.top_m, 0.0, 0.0, 0), primaries, wavelength))
