@@ -146,3 +146,12 @@ def test_echo_spots_ringing_multiple_and_crossing_flanks() -> None:
     pair = [(0.4, 0.2, 0.0), (0.5, 0.2, 0.0)]
     assert is_echo_spot(Spot(0.45, 0.25, 1.0, 1.0, 0), pair, wavelength)  # under two crossing flanks
     assert not is_echo_spot(Spot(0.45, 0.2, 1.0, 1.0, 0), pair, wavelength)  # between them at their depth
+
+
+def test_velocity_voters_leave_out_echoes() -> None:
+    from gprbot.gpr.chain.velocity import _echo_of
+
+    assert _echo_of(0.40, 10.9, 0.40, 3.25)  # a water pipe's bottom, right under its top
+    assert _echo_of(0.33, 7.12, 0.375, 3.77)  # the surface multiple, pulled 4.5 cm aside
+    assert not _echo_of(0.60, 7.0, 0.40, 3.5)  # a neighbour at twice the time, 20 cm away
+    assert not _echo_of(0.40, 3.0, 0.40, 3.5)  # earlier than the stronger one: not its echo
