@@ -97,7 +97,7 @@ def _detection_json(d: ClassifiedDetection) -> dict[str, object]:
         "radius_m": round(d.radius_m, 4), "radius_sigma_m": round(d.radius_sigma_m, 4),
         "radius_supported": d.radius_supported,
         "contrast": d.contrast, "fill_hint": FILL_HINT[d.contrast],
-        "confidence": round(d.confidence, 3), "picks": d.fit.n_picks,
+        "confidence": round(d.confidence, 3), "picks": d.fit.n_picks, "found_by": d.found_by,
     }
 
 

@@ -27,7 +27,7 @@ def test_interpret_reports_the_mesh_as_rebars_and_how_the_velocity_was_found(
     assert len(result["detections"]) <= 1  # pipes: at most one false one on this line
     assert result["velocity_source"] == "estimated" and "migration focus" in result["velocity_method"]
     assert result["time_zero_from"] == "direct-wave envelope peak"
-    for key in ("cover_m", "radius_sigma_m", "radius_supported", "fill_hint", "confidence"):
+    for key in ("cover_m", "radius_sigma_m", "radius_supported", "fill_hint", "confidence", "found_by"):
         assert key in result["rebars"][0]
     assert (tmp_path / "bscan.png").stat().st_size > 0 and (tmp_path / "section.png").stat().st_size > 0
 

@@ -62,6 +62,7 @@ class ClassifiedDetection:
     confidence: float
     fit: CylinderFit
     reflector: Reflector
+    found_by: Literal["hyperbola", "migrated spot"] = "hyperbola"  # which stage found it (see spots.py)
 
 
 def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:

@@ -184,7 +184,7 @@ def _spot_detection(prep: PreparedBScan, spot: Spot, v: float) -> ClassifiedDete
     confidence = float(min(1.0, spot.focus) * min(1.0, seeded.coherence / 0.5)
                        * (1.0 - np.exp(-seeded.candidate.snr / 15.0)))
     return ClassifiedDetection(fit.x0_m, fit.depth_m, fit.radius_m, fit.sigma_radius_m, supported, "pipe",
-                               contrast, confidence, fit, seeded)
+                               contrast, confidence, fit, seeded, found_by="migrated spot")
 
 
 def spot_detections(prep: PreparedBScan, spots: Sequence[Spot], detections: Sequence[ClassifiedDetection],
