@@ -220,8 +220,11 @@ class ShellConfig:
     host: str = "127.0.0.1"
     port: int = 7878
     token_file: str | None = None  # a 0600 file owned by the daemon's user; required when host is not loopback
-    max_clients: int = 8
+    max_clients: int = 8  # authenticated sessions at once
     rate_per_s: float = 20.0
+    max_unauthenticated: int = 2  # sessions still to authenticate; each gets auth_timeout_s (estop always works)
+    auth_timeout_s: float = 10.0
+    idle_timeout_s: float = 1800.0  # an authenticated session without input this long is closed
     serial_console: str | None = None  # e.g. /dev/serial/by-id/usb-FTDI_...; None: no serial shell
     serial_baudrate: int = 115200
 

@@ -42,6 +42,7 @@ log = logging.getLogger(__name__)
 CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
 ENCODER_PERIOD_S = 0.02
 DEFAULT_SHELL_PORT = 7878
+ESTOP_REPEAT_S = 0.5  # while latched, a repeated e-stop re-sends the stop at most this often
 
 
 class RobotRuntime:
@@ -81,13 +82,20 @@ class RobotRuntime:
         self.camera_frames = 0  # RGB-D frames received (VO is not wired into the daemon yet)
         self.supervisor: Supervisor | None = None
         self.estopped = False
+        self._estop_stop: asyncio.Future[None] | None = None
+        self._estop_confirmed_t = -math.inf
         self.stopping = False
         self.moving = False
         self.last_command: np.ndarray = np.zeros(3)
 
     # ----- lifecycle ----------------------------------------------------------------------------
     async def start_devices(self) -> None:
-        """Start the emulators (sim), the motor and GPR drivers and the inference worker."""
+        """Bind the shell, then start the emulators (sim), the motor and GPR drivers and the inference worker.
+
+        The shell comes first: a config that leaves the robot unreachable (no token beyond loopback, a
+        token file others can read, a port in use) is a ConfigError here, before READY=1, so systemd sees
+        the start fail instead of a healthy-looking robot that nobody can reach."""
+        await self.start_shell()
         cfg = self.cfg
         if self.sim is not None:
             cfg = await self.sim.start()
@@ -111,6 +119,10 @@ class RobotRuntime:
             ("worker", self.worker.close if self.worker is not None else None),
             ("sim", self.sim.close if self.sim is not None else None),
         ]
+        if self.shell is not None:
+            with contextlib.suppress(TimeoutError):  # a client that stopped reading must not hold us up
+                async with asyncio.timeout(3.0):
+                    await self.shell.close()
         for name, close in steps:
             if close is None:
                 continue
@@ -236,22 +248,26 @@ class RobotRuntime:
                 await motors.set_wheel_speeds(command)
             self.recorder.append(command, now)
 
-    async def _run_shell(self, beat: Callable[[], None]) -> None:
+    async def start_shell(self) -> None:
+        """Load the token and bind the TCP shell (ConfigError if either is impossible)."""
         from gprbot.robot.handler import RobotHandler
 
-        beat()
+        shell = self.cfg.shell
         server = ShellServer(RobotHandler(self), host=self.shell_host, port=self.shell_port,
                              token_file=self.token_file, events=self.events,
-                             max_clients=self.cfg.shell.max_clients, rate_per_s=self.cfg.shell.rate_per_s)
-        await server.start()
+                             max_clients=shell.max_clients, rate_per_s=shell.rate_per_s,
+                             max_unauthenticated=shell.max_unauthenticated, auth_timeout_s=shell.auth_timeout_s,
+                             idle_timeout_s=shell.idle_timeout_s)
+        await server.start(serving=False)  # clients wait in the backlog until the tasks run
         self.shell = server
         self.shell_port = server.port
-        try:
-            await asyncio.Event().wait()
-        finally:
-            with contextlib.suppress(TimeoutError):  # a client that stopped reading must not hold us up
-                async with asyncio.timeout(2.0):
-                    await server.close()
+
+    async def _run_shell(self, beat: Callable[[], None]) -> None:
+        """The TCP shell's task: the server (bound at start) serves on the loop; closed in close_devices."""
+        beat()
+        assert self.shell is not None
+        await self.shell.start_serving()
+        await asyncio.Event().wait()
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
         from gprbot.robot.handler import RobotHandler
@@ -274,13 +290,26 @@ class RobotRuntime:
 
     # ----- operations for the handler --------------------------------------------------------------
     async def estop(self) -> float:
-        """Latch the e-stop and command every wheel to 0 now, ahead of queued requests; seconds taken."""
+        """Latch the e-stop and command every wheel to 0 now, ahead of queued requests; seconds taken.
+
+        Repeats coalesce: while latched, a stop already in flight is shared, and one confirmed less than
+        ESTOP_REPEAT_S ago is not sent again (nothing drives the wheels while latched), so an e-stop
+        flood cannot starve the motor bus or flood the clients with events."""
         began = self.clock()
+        already = self.estopped
         self.estopped = True
         self.jog.stop(began)
         self.survey.pause()
-        await self.stop_wheels()
-        self.emit("estop")
+        if self._estop_stop is not None and not self._estop_stop.done():
+            await asyncio.shield(self._estop_stop)
+            return self.clock() - began
+        if already and began - self._estop_confirmed_t < ESTOP_REPEAT_S:
+            return 0.0
+        self._estop_stop = asyncio.ensure_future(self.stop_wheels())
+        await asyncio.shield(self._estop_stop)
+        self._estop_confirmed_t = self.clock()
+        if not already:
+            self.emit("estop")
         return self.clock() - began
 
     async def stop_wheels(self) -> None:

@@ -110,7 +110,7 @@ class ShellConnection:
 
     async def authenticate(self, token: str) -> None:
         """Send `auth TOKEN` (ShellCommandError if refused)."""
-        await self.check(f"auth {token}")
+        await self.check(f"auth {_quote(token)}")  # the server splits lines like a shell
 
     async def pull_file(self, run: str, name: str, target: Path) -> Path:
         """Fetch one file, verify its sha256 and move it into place atomically; returns `target`."""
