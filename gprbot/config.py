@@ -226,6 +226,9 @@ class ShellConfig:
     max_unauthenticated: int = 2  # sessions still to authenticate; each gets auth_timeout_s (estop always works)
     auth_timeout_s: float = 10.0
     idle_timeout_s: float = 1800.0  # an authenticated session without input this long is closed
+    # Operators' subnets (CIDR): the shell refuses other peers (loopback always allowed), and the
+    # systemd drop-in (python -m gprbot.systemd_unit) opens the firewall to them. Empty: any peer.
+    allow_from: tuple[str, ...] = ()
     serial_console: str | None = None  # e.g. /dev/serial/by-id/usb-FTDI_...; None: no serial shell
     serial_baudrate: int = 115200
 

@@ -8,6 +8,7 @@ every operator out). Every float must be finite unless the table says otherwise.
 from __future__ import annotations
 
 import dataclasses
+import ipaddress
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -173,6 +174,11 @@ def _check_relations(config: Any) -> None:
     for i, (address, _) in enumerate(motors.controller_ports):
         if not 128 <= address <= 135:
             raise ConfigError(f"motors.controller_ports[{i}]: expected an address 128..135, got {address}")
+    for i, net in enumerate(config.shell.allow_from):
+        try:
+            ipaddress.ip_network(net, strict=False)
+        except ValueError:
+            raise ConfigError(f"shell.allow_from[{i}]: expected a subnet like 192.168.10.0/24, got {net!r}") from None
     low, high = realsense.reconnect_backoff_s
     if low > high:
         raise ConfigError(f"realsense.reconnect_backoff_s: the first wait ({low:g}) exceeds the longest ({high:g})")

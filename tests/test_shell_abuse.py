@@ -255,3 +255,12 @@ async def test_an_estop_flood_logs_a_bounded_number_of_lines(tmp_path: Path, cap
         await client.close()
     finally:
         await server.close()
+
+
+def test_peers_outside_allow_from_are_refused_but_loopback_never(tmp_path: Path) -> None:
+    server = ShellServer(FakeHandler(tmp_path), allow_from=("192.168.10.0/24",))
+    assert server._peer_allowed(("192.168.10.42", 5000))
+    assert server._peer_allowed(("127.0.0.1", 5000)) and server._peer_allowed(("::1", 5000, 0, 0))
+    assert not server._peer_allowed(("192.168.11.1", 5000))
+    assert not server._peer_allowed(("10.0.0.1", 5000))
+    assert ShellServer(FakeHandler(tmp_path))._peer_allowed(("10.0.0.1", 5000))  # no list: any peer

@@ -257,7 +257,7 @@ class RobotRuntime:
                              token_file=self.token_file, events=self.events,
                              max_clients=shell.max_clients, rate_per_s=shell.rate_per_s,
                              max_unauthenticated=shell.max_unauthenticated, auth_timeout_s=shell.auth_timeout_s,
-                             idle_timeout_s=shell.idle_timeout_s)
+                             idle_timeout_s=shell.idle_timeout_s, allow_from=shell.allow_from)
         await server.start(serving=False)  # clients wait in the backlog until the tasks run
         self.shell = server
         self.shell_port = server.port

@@ -63,6 +63,7 @@ class ShellServer:
         max_overflow: int = 8,
         overflow_window_s: float = 2.0,
         guard: AuthGuard | None = None,
+        allow_from: tuple[str, ...] = (),
     ) -> None:
         self.host, self.port = host, port
         self.events = events if events is not None else EventBus()
@@ -73,6 +74,7 @@ class ShellServer:
         self._handler, self._token_file, self._clock = handler, token_file, clock
         self._limits = SessionLimits(max_line=max_line, rate_per_s=rate_per_s, auth_timeout_s=auth_timeout_s,
                                      idle_timeout_s=idle_timeout_s)
+        self._allowed = [ipaddress.ip_network(net, strict=False) for net in allow_from]
         self._overflow: set[int] = set()
         self._quiet = RateLimitedLog(log)
         self._token: str | None = None
@@ -91,6 +93,16 @@ class ShellServer:
     def admitted_count(self) -> int:
         """Sessions that hold one of the `max_clients` slots."""
         return sum(s.admitted for s in self._sessions.values())
+
+    def _peer_allowed(self, peername: object) -> bool:
+        """Loopback always; else, when shell.allow_from is set, a peer inside one of its subnets."""
+        if not self._allowed or not isinstance(peername, tuple):
+            return True
+        try:
+            address = ipaddress.ip_address(peername[0])
+        except ValueError:
+            return False
+        return address.is_loopback or any(address in net for net in self._allowed)
 
     def _admit(self, session: Session) -> str | None:
         """A pending session authenticated (or, without a token, sent a line): is there a slot?"""
@@ -155,6 +167,10 @@ class ShellServer:
         peername = writer.get_extra_info("peername")
         peer = f"{peername[0]}:{peername[1]}" if isinstance(peername, tuple) else str(peername)
         try:
+            if not self._peer_allowed(peername):
+                self._quiet.log(logging.WARNING, "outside", "shell: refusing %s: not in shell.allow_from", peer)
+                writer.write(encode_reply(Reply.failure(ErrorCode.UNAUTHORIZED, "this network may not use the shell")))
+                return
             pending = sum(not s.admitted for s in self._sessions.values()) - len(self._overflow)
             if pending < self.max_unauthenticated:
                 deadline, overflow = self._limits.auth_timeout_s, False
