@@ -9,7 +9,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-
 OUTPUT_MODE = 0o640  # results are for the operator's group too (mkstemp alone would leave them 0600)
 
 
