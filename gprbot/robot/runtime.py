@@ -71,7 +71,8 @@ class RobotRuntime:
         self.worker = InferenceWorker(cfg) if use_worker else None
         truth = [p.points for p in self.sim.scene.pipes] if self.sim is not None else []
         self.survey = SurveyRunner(cfg, self.fusion, self.recorder, self.emit, worker=self.worker, clock=clock,
-                                   run_meta=self._run_meta, truth_axes=truth)
+                                   run_meta=self._run_meta, truth_axes=truth, links_fault=self._links_fault,
+                                   may_resume=lambda: not (self.estopped or self.stopping))
         self.shell_host = shell_host
         self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
         self.token_file = token_file
@@ -330,6 +331,13 @@ class RobotRuntime:
         run = self.survey.current
         survey = f"survey {run.state} line {run.line + 1}/{run.lines}" if run is not None else "no survey"
         return f"{'ESTOP' if self.estopped else 'ok'}; {survey}"
+
+    def _links_fault(self) -> str | None:
+        """Why the survey cannot go on now (a motor or GPR link down), or None."""
+        for driver in (self.motors, self.gpr):
+            if driver is not None and not driver.health().connected:
+                return f"{driver.health().name} link lost ({driver.health().last_error or 'reconnecting'})"
+        return None
 
     def _motors(self) -> MotorDriver:
         if self.motors is None:
