@@ -87,3 +87,29 @@ async def test_an_estop_flood_coalesces_and_starves_no_task(tmp_path: Path) -> N
         assert runtime.supervisor is not None
         assert all(t.restarts == 0 for t in runtime.supervisor.health()), runtime.supervisor.health()
         flood[1].close()
+
+
+@pytest.mark.timeout(240)
+async def test_waiting_for_a_reconnect_or_a_failed_survey_is_not_a_task_crash(tmp_path: Path) -> None:
+    """Soak findings: the encoder task missed its watchdog while the motor driver reconnected, and a
+    survey whose data held no hyperbola raised out of the survey task; both were counted as restarts."""
+    from gprbot.errors import InterpretationError
+
+    async with running_daemon(tmp_path, use_worker=False) as (runtime, client, _, _):
+        assert runtime.sim is not None and runtime.supervisor is not None
+        runtime.sim.motors.unplug()
+        await asyncio.sleep(2.0)  # twice the encoder task's watchdog
+        runtime.sim.motors.replug()
+
+        async def no_hyperbola(bscans: object) -> None:
+            raise InterpretationError("no reflection hyperbola found to estimate the velocity from")
+
+        runtime.survey._reconstruct = no_hyperbola  # type: ignore[method-assign,assignment]
+        async with asyncio.timeout(20):
+            while not runtime.motors or not runtime.motors.connected:
+                await asyncio.sleep(0.1)
+        assert (await client.command("survey start lines=1")).ok
+        failed = await client.wait_event("survey failed", timeout_s=120)
+        assert "no reflection hyperbola" in failed
+        restarts = {t.name: t.restarts for t in runtime.supervisor.health()}
+        assert restarts["motors.encoders"] == 0 and restarts["survey"] == 0, restarts

@@ -91,12 +91,11 @@ class RobotRuntime:
 
     # ----- lifecycle ----------------------------------------------------------------------------
     async def start_devices(self) -> None:
-        """Bind the shell, then start the emulators (sim), the motor and GPR drivers and the inference worker.
+        """Start the emulators (sim), the motor and GPR drivers and the inference worker, then bind the shell.
 
-        The shell comes first: a config that leaves the robot unreachable (no token beyond loopback, a
-        token file others can read, a port in use) is a ConfigError here, before READY=1, so systemd sees
-        the start fail instead of a healthy-looking robot that nobody can reach."""
-        await self.start_shell()
+        A shell config that leaves the robot unreachable (no token beyond loopback, a token file others
+        can read, a port in use) is a ConfigError here, before READY=1, so systemd sees the start fail
+        instead of a healthy-looking robot that nobody can reach."""
         cfg = self.cfg
         if self.sim is not None:
             cfg = await self.sim.start()
@@ -110,6 +109,7 @@ class RobotRuntime:
             await self.realsense.start()
         if self.worker is not None:
             await self.worker.start()
+        await self.start_shell()
 
     async def close_devices(self) -> None:
         """Stop the drivers, the worker and the emulators (best effort, each independently)."""
@@ -197,7 +197,10 @@ class RobotRuntime:
                     self.fusion.submit(encoders.wheel_speeds())
                     self.recorder.append(encoders, encoders.t)
             else:
-                await motors.wait_connected()
+                # waiting for the driver to reconnect (with backoff) is not a hang: keep beating
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(0.25):
+                        await motors.wait_connected()
             next_t = max(next_t + ENCODER_PERIOD_S, self.clock())
             await asyncio.sleep(next_t - self.clock())
 
@@ -259,15 +262,13 @@ class RobotRuntime:
                              max_clients=shell.max_clients, rate_per_s=shell.rate_per_s,
                              max_unauthenticated=shell.max_unauthenticated, auth_timeout_s=shell.auth_timeout_s,
                              idle_timeout_s=shell.idle_timeout_s, allow_from=shell.allow_from)
-        await server.start(serving=False)  # clients wait in the backlog until the tasks run
+        await server.start()
         self.shell = server
         self.shell_port = server.port
 
     async def _run_shell(self, beat: Callable[[], None]) -> None:
         """The TCP shell's task: the server (bound at start) serves on the loop; closed in close_devices."""
         beat()
-        assert self.shell is not None
-        await self.shell.start_serving()
         await asyncio.Event().wait()
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:

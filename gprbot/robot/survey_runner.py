@@ -197,7 +197,11 @@ class SurveyRunner:
                 continue
             try:
                 await self._execute(survey, beat)
-            except Exception as exc:
+            except GprbotError as exc:  # the data or a device, not this task: the survey fails, the task goes on
+                survey.state, survey.error = "failed", f"{type(exc).__name__}: {exc}"
+                log.error("survey %s failed: %s", survey.name, exc)
+                self.emit(f"survey failed {survey.name}: {exc}")
+            except Exception as exc:  # a bug: the supervisor restarts the task (and counts it)
                 survey.state, survey.error = "failed", f"{type(exc).__name__}: {exc}"
                 self.emit(f"survey failed {survey.name}: {exc}")
                 raise

@@ -115,9 +115,8 @@ class ShellServer:
         """Send `* event` to every client of every transport sharing this server's bus."""
         self.events.broadcast(event)
 
-    async def start(self, serving: bool = True) -> None:
-        """Load the token (if any), bind and (unless `serving` is False: see `start_serving`) start
-        accepting; `.port` is then the bound port."""
+    async def start(self) -> None:
+        """Load the token (if any), bind and start accepting; `.port` is then the bound port."""
         if self._token_file is not None:
             self._token = load_token(self._token_file)
         elif not is_loopback(self.host):
@@ -126,16 +125,11 @@ class ShellServer:
                 "or listen on 127.0.0.1"
             )
         try:
-            self._server = await asyncio.start_server(self._on_connect, self.host, self.port, start_serving=serving)
+            self._server = await asyncio.start_server(self._on_connect, self.host, self.port)
         except OSError as exc:
             raise ConfigError(f"cannot listen on {self.host}:{self.port}: {exc}; is another gprbot running?") from exc
         self.port = self._server.sockets[0].getsockname()[1]
         log.info("shell listening on %s:%d (%s)", self.host, self.port, "token" if self._token else "no token")
-
-    async def start_serving(self) -> None:
-        """Accept connections (those that arrived since `start(serving=False)` wait in the backlog)."""
-        if self._server is not None:
-            await self._server.start_serving()
 
     async def close(self, grace_s: float = 1.0) -> None:
         """Stop accepting and drop every client: sessions get `grace_s` to finish, then their connections
