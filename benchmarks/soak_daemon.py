@@ -230,7 +230,8 @@ def report(minutes: float, out: dict[str, list[float]], memory: list[tuple[float
                               "p99": float(np.percentile(wheels, 99)), "max": float(wheels.max())}
         if wheels.size else None,
         "rss_mib": {"first": float(rss[0]), "warm_median": float(statistics.median(warm)),
-                    "late_median": float(statistics.median(late)), "max": float(rss.max()), "growth": growth},
+                    "late_median": float(statistics.median(late)), "max": float(rss.max()), "growth": growth,
+                    "timeline": [[round(t), round(m, 1)] for t, m in memory[::6]]},  # every minute
         "watchdog_restarts": int(out.get("restarts", [float("nan")])[0]),
         "runs": len(out.get("runs", [])), "lost_records": lost, "torn_logs": torn, "runs_not_ended": not_ended,
         "abuser_connections": counts, "daemon_alive_at_end": alive, "exit_status_after_sigterm": exit_status,
