@@ -9,7 +9,9 @@ were commanded to 0 and confirmed), then `reset` and `survey resume`; it also cl
 latched. Printed: e-stop round trip (median, p99, max), wheels-stopped latency, the daemon's memory
 (RSS) growth after warm-up, watchdog restarts (from `status`), and lost records (skipped or torn
 records of every run log, runs not ended). Goal (issue 15): p99 <= 50 ms, max <= 100 ms, growth
-<= 10 MiB, 0 restarts, 0 lost records.
+<= 10 MiB, 0 restarts, 0 lost records. On memory: the pose filter keeps `fusion.history_s` (900 s) of
+output poses (~35 MiB when full), so a 15-minute soak's growth includes that history filling up; the
+per-minute RSS timeline in the JSON shows whether it levels off.
 
 Run: `python -m benchmarks.soak_daemon --minutes 15 [--json OUT]`.
 """
