@@ -18,6 +18,7 @@ from typing import Any, Literal
 
 import yaml
 
+from gprbot.config_ranges import check_ranges
 from gprbot.errors import ConfigError
 
 Vec3 = tuple[float, float, float]
@@ -220,8 +221,14 @@ class ShellConfig:
     host: str = "127.0.0.1"
     port: int = 7878
     token_file: str | None = None  # a 0600 file owned by the daemon's user; required when host is not loopback
-    max_clients: int = 8
+    max_clients: int = 8  # authenticated sessions at once
     rate_per_s: float = 20.0
+    max_unauthenticated: int = 2  # sessions still to authenticate; each gets auth_timeout_s (estop always works)
+    auth_timeout_s: float = 10.0
+    idle_timeout_s: float = 1800.0  # an authenticated session without input this long is closed
+    # Operators' subnets (CIDR): the shell refuses other peers (loopback always allowed), and the
+    # systemd drop-in (python -m gprbot.systemd_unit) opens the firewall to them. Empty: any peer.
+    allow_from: tuple[str, ...] = ()
     serial_console: str | None = None  # e.g. /dev/serial/by-id/usb-FTDI_...; None: no serial shell
     serial_baudrate: int = 115200
 
@@ -338,18 +345,57 @@ def build_dataclass(cls: type[Any], data: dict[str, Any], path: str = "") -> Any
     return cls(**kwargs)
 
 
+MAX_YAML_DEPTH = 16  # a config is a few levels deep; thousands of levels overflow the YAML composer's stack
+MAX_YAML_ALIASES = 64  # anchors/aliases expand: a "billion laughs" file would take the memory
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """safe_load that refuses a key given twice in one mapping (the second silently won)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, Any] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            if isinstance(key, typing.Hashable) and key in seen:
+                line = key_node.start_mark.line + 1
+                raise ConfigError(f"line {line}: key {key!r} appears twice in the same section; keep one")
+            seen[key] = True
+        return super().construct_mapping(node, deep=deep)
+
+
+def _check_yaml_shape(text: str) -> None:
+    """Refuse deep nesting and alias floods from the event stream (iterative, so it cannot overflow)."""
+    depth = aliases = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.MappingStartEvent | yaml.SequenceStartEvent):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                line = event.start_mark.line + 1 if event.start_mark else "?"
+                raise ConfigError(f"line {line}: nested more than {MAX_YAML_DEPTH} levels deep; a config is not")
+        elif isinstance(event, yaml.MappingEndEvent | yaml.SequenceEndEvent):
+            depth -= 1
+        elif isinstance(event, yaml.AliasEvent):
+            aliases += 1
+            if aliases > MAX_YAML_ALIASES:
+                raise ConfigError(f"more than {MAX_YAML_ALIASES} YAML aliases (*name); write the values out")
+
+
 def parse_config(text: str, source: str = "<string>") -> Config:
-    """Parse YAML text into a Config."""
+    """Parse YAML text into a Config (types checked, then value ranges)."""
     try:
-        data = yaml.safe_load(text)
+        _check_yaml_shape(text)
+        data = yaml.load(text, Loader=_StrictLoader)  # a SafeLoader subclass: no arbitrary objects
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: not valid YAML ({exc})") from exc
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: the top level must be a mapping of sections")
     try:
         config: Config = build_dataclass(Config, data)
+        check_ranges(config)
     except ConfigError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     return config

@@ -15,15 +15,17 @@ import asyncio
 import contextlib
 import logging
 import math
+import os
 import signal
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 from gprbot.config import Config
 from gprbot.errors import GprbotError
 from gprbot.sdnotify import SdNotifier, watchdog_interval_s
+from gprbot.shutdown_budget import SHUTDOWN_STEPS_S
 
 log = logging.getLogger(__name__)
 
@@ -267,9 +269,11 @@ async def serve(cfg: Config, *, shell_host: str = "127.0.0.1", shell_port: int |
             on_ready(runtime)
         await supervisor.run(stop)
         notifier.stopping("stopping: wheels, current line, run log, worker")
-        await _bounded("stop the wheels and end the run", runtime.shutdown(), 10.0)
-        await _bounded("cancel the tasks", supervisor.stop(), 5.0)
-        await _bounded("close the devices and the worker", runtime.close_devices(), 10.0)
+        steps = SHUTDOWN_STEPS_S
+        await _bounded("stop the wheels and end the run", runtime.shutdown(), steps["stop the wheels and end the run"])
+        await _bounded("cancel the tasks", supervisor.stop(), steps["cancel the tasks"])
+        await _bounded("close the devices and the worker", runtime.close_devices(),
+                       steps["close the devices and the worker"])
         return 0
     finally:
         for signum in installed:
@@ -289,9 +293,35 @@ async def _bounded(what: str, step: Awaitable[None], timeout_s: float) -> None:
         log.info("shutdown: %s in %.2f s", what, time.monotonic() - began)
 
 
+JOURNAL_PRIORITIES = {logging.CRITICAL: 2, logging.ERROR: 3, logging.WARNING: 4, logging.INFO: 6, logging.DEBUG: 7}
+
+
+class JournalFormatter(logging.Formatter):
+    """`<N>` syslog priority prefixes (sd-daemon(3)) so `journalctl -p err` finds the errors; one line per
+    record (a traceback's lines are joined) so that the priority covers all of it."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        """The record as `<priority>LEVEL name: message`."""
+        level = max((lv for lv in JOURNAL_PRIORITIES if lv <= record.levelno), default=logging.DEBUG)
+        text = super().format(record).replace("\n", " ⏎ ")
+        return f"<{JOURNAL_PRIORITIES[level]}>{text}"
+
+
+def configure_logging(environ: Mapping[str, str] | None = None) -> None:
+    """Log to stderr; under systemd (JOURNAL_STREAM set), with journald priorities and without times."""
+    root = logging.getLogger()
+    if root.handlers:
+        return
+    env = os.environ if environ is None else environ
+    handler = logging.StreamHandler()
+    fmt = "%(levelname)s %(name)s: %(message)s"
+    handler.setFormatter(JournalFormatter(fmt) if env.get("JOURNAL_STREAM") else logging.Formatter(fmt))
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+
+
 def run_daemon(cfg: Config, *, shell_host: str = "127.0.0.1", shell_port: int | None = None,
                token_file: str | None = None) -> int:
     """`gprbot run --config FILE`: run the robot daemon until SIGTERM/SIGINT; the process exit status."""
-    if not logging.getLogger().handlers:  # under systemd, stderr is the journal (which adds the time)
-        logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging()
     return asyncio.run(serve(cfg, shell_host=shell_host, shell_port=shell_port, token_file=token_file))

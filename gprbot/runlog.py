@@ -26,6 +26,7 @@ from typing import Any
 import msgpack
 
 from gprbot import __version__
+from gprbot.atomic_files import fsync_directory
 from gprbot.config import to_dict
 from gprbot.errors import GprbotError
 from gprbot.messages import encode, register_message
@@ -165,7 +166,7 @@ class RunLogWriter:
         path = segment_path(self.run_dir, index)
         try:
             handle = open(path, "xb", buffering=0)  # noqa: SIM115 - lives as long as the segment
-            _fsync_dir(self.run_dir)
+            fsync_directory(self.run_dir)
         except FileExistsError as exc:
             raise GprbotError(f"{path} already exists: give every run a new run directory") from exc
         except OSError as exc:
@@ -202,12 +203,3 @@ class RunLogWriter:
             except OSError as exc:
                 raise GprbotError(f"cannot fsync the run log in {self.run_dir}: {exc.strerror}") from exc
             self._dirty = False
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make a new directory entry durable (a new segment must survive a power loss too)."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

@@ -119,6 +119,11 @@ class RunLogReader:
         self.note, self.skipped, self.undecoded = "", 0, 0
 
     def _decode(self, segment: int, offset: int, payload: memoryview) -> LogRecord | None:
+        if len(payload) < 1 + RECEIVE_TIME.size:  # a checksum only says the bytes are as written
+            self.skipped += 1
+            self._note(f"a message record of {len(payload)} bytes at {self._where(segment, offset)} is too short "
+                       f"(a receive time alone takes {1 + RECEIVE_TIME.size}); skipped")
+            return None
         body = bytes(payload[1 + RECEIVE_TIME.size:])
         (t_received,) = RECEIVE_TIME.unpack_from(payload, 1)
         try:

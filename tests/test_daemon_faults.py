@@ -68,6 +68,13 @@ def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], int, int, 
             assert proc.poll() is None, (tmp_path / "daemon.log").read_text()
             assert time.monotonic() < deadline, "the daemon did not open its shell"
             time.sleep(0.2)
+    while True:  # the shell binds before the tasks start: wait for the serial console too
+        try:
+            _serial_exchange(master, b"", timeout_s=1.0)
+            break
+        except AssertionError:
+            assert proc.poll() is None, (tmp_path / "daemon.log").read_text()
+            assert time.monotonic() < deadline, "the daemon did not open its serial console"
     yield proc, port, master, runs
     if proc.poll() is None:
         proc.kill()

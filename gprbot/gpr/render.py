@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.atomic_files import write_bytes_atomic
 from gprbot.errors import DataFormatError
 from gprbot.gpr.bscan import BScan, CrossSection
 from gprbot.gpr.migration import envelope
@@ -76,14 +77,19 @@ def _framed(
 
 
 def _write(path: str | Path, canvas: NDArray[np.uint8]) -> None:
-    """cv2.imwrite, with its silent failure turned into an error that names the path."""
+    """Encode a PNG and write it atomically (like every other output), errors naming the path."""
     target = Path(path)
     try:
-        ok = cv2.imwrite(str(target), canvas)
+        ok, encoded = cv2.imencode(".png", canvas)
     except cv2.error as exc:
-        raise DataFormatError(f"cannot write PNG {target}: {exc}") from exc
+        raise DataFormatError(f"cannot encode PNG {target}: {exc}") from exc
     if not ok:
-        raise DataFormatError(f"cannot write PNG {target}; check that its directory exists and is writable")
+        raise DataFormatError(f"cannot encode PNG {target}")
+    try:
+        write_bytes_atomic(target, encoded.tobytes())
+    except OSError as exc:
+        raise DataFormatError(f"cannot write PNG {target}: {exc.strerror}; check that its directory exists "
+                              "and is writable") from exc
 
 
 def write_bscan_png(path: str | Path, bscan: BScan) -> None:

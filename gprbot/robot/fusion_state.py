@@ -14,6 +14,8 @@ from gprbot.config import Config
 from gprbot.fusion.fuser import PoseFuser, SensorMessage
 from gprbot.messages import ImuSample, Pose
 
+MAX_BATCH = 20  # messages pushed into the filter before the task lets the rest of the loop run
+
 
 class FusionState:
     """PoseFuser behind an asyncio queue, with the latest heading and gyro rate for heading hold."""
@@ -66,6 +68,14 @@ class FusionState:
                 continue
             self.fuser.push(message)
             self.messages += 1
+            pushed = 1
             while not self._queue.empty():
+                if pushed % MAX_BATCH == 0:
+                    # A backlog (after a stall, under CPU load) is drained in slices: one long drain held
+                    # the loop for over a second, so the encoders' serial replies timed out and the
+                    # wheels were stopped mid-line, which made survey results depend on the machine's load.
+                    beat()
+                    await asyncio.sleep(0)
                 self.fuser.push(self._queue.get_nowait())
                 self.messages += 1
+                pushed += 1

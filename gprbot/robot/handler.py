@@ -132,6 +132,8 @@ class RobotHandler:
         if run is not None:
             lines.append(f"survey {run.name} {run.state} line {run.line + 1}/{run.lines} traces {len(run.traces)}"
                          + (f" pipes {run.pipes}" if run.pipes is not None else "")
+                         + (f" interrupted_lines {sorted({line for line, _ in run.interruptions})}"
+                            if run.interruptions else "")
                          + (f" error {run.error}" if run.error else ""))
         if rt.supervisor is not None:
             lines.append(f"supervisor {'healthy' if rt.supervisor.healthy else 'UNHEALTHY'} "

@@ -42,6 +42,7 @@ log = logging.getLogger(__name__)
 CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
 ENCODER_PERIOD_S = 0.02
 DEFAULT_SHELL_PORT = 7878
+ESTOP_REPEAT_S = 0.5  # while latched, a repeated e-stop re-sends the stop at most this often
 
 
 class RobotRuntime:
@@ -70,7 +71,8 @@ class RobotRuntime:
         self.worker = InferenceWorker(cfg) if use_worker else None
         truth = [p.points for p in self.sim.scene.pipes] if self.sim is not None else []
         self.survey = SurveyRunner(cfg, self.fusion, self.recorder, self.emit, worker=self.worker, clock=clock,
-                                   run_meta=self._run_meta, truth_axes=truth)
+                                   run_meta=self._run_meta, truth_axes=truth, links_fault=self._links_fault,
+                                   may_resume=lambda: not (self.estopped or self.stopping))
         self.shell_host = shell_host
         self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
         self.token_file = token_file
@@ -81,13 +83,19 @@ class RobotRuntime:
         self.camera_frames = 0  # RGB-D frames received (VO is not wired into the daemon yet)
         self.supervisor: Supervisor | None = None
         self.estopped = False
+        self._estop_stop: asyncio.Future[None] | None = None
+        self._estop_confirmed_t = -math.inf
         self.stopping = False
         self.moving = False
         self.last_command: np.ndarray = np.zeros(3)
 
     # ----- lifecycle ----------------------------------------------------------------------------
     async def start_devices(self) -> None:
-        """Start the emulators (sim), the motor and GPR drivers and the inference worker."""
+        """Start the emulators (sim), the motor and GPR drivers and the inference worker, then bind the shell.
+
+        A shell config that leaves the robot unreachable (no token beyond loopback, a token file others
+        can read, a port in use) is a ConfigError here, before READY=1, so systemd sees the start fail
+        instead of a healthy-looking robot that nobody can reach."""
         cfg = self.cfg
         if self.sim is not None:
             cfg = await self.sim.start()
@@ -101,6 +109,7 @@ class RobotRuntime:
             await self.realsense.start()
         if self.worker is not None:
             await self.worker.start()
+        await self.start_shell()
 
     async def close_devices(self) -> None:
         """Stop the drivers, the worker and the emulators (best effort, each independently)."""
@@ -111,6 +120,10 @@ class RobotRuntime:
             ("worker", self.worker.close if self.worker is not None else None),
             ("sim", self.sim.close if self.sim is not None else None),
         ]
+        if self.shell is not None:
+            with contextlib.suppress(TimeoutError):  # a client that stopped reading must not hold us up
+                async with asyncio.timeout(3.0):
+                    await self.shell.close()
         for name, close in steps:
             if close is None:
                 continue
@@ -184,7 +197,10 @@ class RobotRuntime:
                     self.fusion.submit(encoders.wheel_speeds())
                     self.recorder.append(encoders, encoders.t)
             else:
-                await motors.wait_connected()
+                # waiting for the driver to reconnect (with backoff) is not a hang: keep beating
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(0.25):
+                        await motors.wait_connected()
             next_t = max(next_t + ENCODER_PERIOD_S, self.clock())
             await asyncio.sleep(next_t - self.clock())
 
@@ -236,22 +252,24 @@ class RobotRuntime:
                 await motors.set_wheel_speeds(command)
             self.recorder.append(command, now)
 
-    async def _run_shell(self, beat: Callable[[], None]) -> None:
+    async def start_shell(self) -> None:
+        """Load the token and bind the TCP shell (ConfigError if either is impossible)."""
         from gprbot.robot.handler import RobotHandler
 
-        beat()
+        shell = self.cfg.shell
         server = ShellServer(RobotHandler(self), host=self.shell_host, port=self.shell_port,
                              token_file=self.token_file, events=self.events,
-                             max_clients=self.cfg.shell.max_clients, rate_per_s=self.cfg.shell.rate_per_s)
+                             max_clients=shell.max_clients, rate_per_s=shell.rate_per_s,
+                             max_unauthenticated=shell.max_unauthenticated, auth_timeout_s=shell.auth_timeout_s,
+                             idle_timeout_s=shell.idle_timeout_s, allow_from=shell.allow_from)
         await server.start()
         self.shell = server
         self.shell_port = server.port
-        try:
-            await asyncio.Event().wait()
-        finally:
-            with contextlib.suppress(TimeoutError):  # a client that stopped reading must not hold us up
-                async with asyncio.timeout(2.0):
-                    await server.close()
+
+    async def _run_shell(self, beat: Callable[[], None]) -> None:
+        """The TCP shell's task: the server (bound at start) serves on the loop; closed in close_devices."""
+        beat()
+        await asyncio.Event().wait()
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
         from gprbot.robot.handler import RobotHandler
@@ -274,13 +292,26 @@ class RobotRuntime:
 
     # ----- operations for the handler --------------------------------------------------------------
     async def estop(self) -> float:
-        """Latch the e-stop and command every wheel to 0 now, ahead of queued requests; seconds taken."""
+        """Latch the e-stop and command every wheel to 0 now, ahead of queued requests; seconds taken.
+
+        Repeats coalesce: while latched, a stop already in flight is shared, and one confirmed less than
+        ESTOP_REPEAT_S ago is not sent again (nothing drives the wheels while latched), so an e-stop
+        flood cannot starve the motor bus or flood the clients with events."""
         began = self.clock()
+        already = self.estopped
         self.estopped = True
         self.jog.stop(began)
         self.survey.pause()
-        await self.stop_wheels()
-        self.emit("estop")
+        if self._estop_stop is not None and not self._estop_stop.done():
+            await asyncio.shield(self._estop_stop)
+            return self.clock() - began
+        if already and began - self._estop_confirmed_t < ESTOP_REPEAT_S:
+            return 0.0
+        self._estop_stop = asyncio.ensure_future(self.stop_wheels())
+        await asyncio.shield(self._estop_stop)
+        self._estop_confirmed_t = self.clock()
+        if not already:
+            self.emit("estop")
         return self.clock() - began
 
     async def stop_wheels(self) -> None:
@@ -301,6 +332,13 @@ class RobotRuntime:
         run = self.survey.current
         survey = f"survey {run.state} line {run.line + 1}/{run.lines}" if run is not None else "no survey"
         return f"{'ESTOP' if self.estopped else 'ok'}; {survey}"
+
+    def _links_fault(self) -> str | None:
+        """Why the survey cannot go on now (a motor or GPR link down), or None."""
+        for driver in (self.motors, self.gpr):
+            if driver is not None and not driver.health().connected:
+                return f"{driver.health().name} link lost ({driver.health().last_error or 'reconnecting'})"
+        return None
 
     def _motors(self) -> MotorDriver:
         if self.motors is None:

@@ -37,6 +37,8 @@ from gprbot.survey import assemble_bscan
 
 log = logging.getLogger(__name__)
 STEP_S = 0.02  # how often the runner re-checks pause/abort while a segment runs
+LINK_RESUME_S = 10.0  # a survey paused by a lost device link resumes by itself if it is back within this
+LINK_SETTLE_S = 0.3
 T = TypeVar("T")
 
 
@@ -56,6 +58,8 @@ class SurveyRun:
     pipes: int | None = None
     error: str | None = None
     abort_reason: str | None = None
+    interruptions: list[tuple[int, str]] = field(default_factory=list)  # (line, why): a device link was lost
+    paused_by_link: str | None = None
 
     @property
     def lines(self) -> int:
@@ -69,8 +73,12 @@ class SurveyRunner:
     def __init__(self, cfg: Config, fusion: FusionState, recorder: Recorder, emit: Callable[[str], None], *,
                  worker: InferenceWorker | None = None, clock: Callable[[], float] = time.monotonic,
                  run_meta: Callable[[], dict[str, Any]] | None = None,
-                 truth_axes: list[NDArray[np.float64]] | None = None) -> None:
+                 truth_axes: list[NDArray[np.float64]] | None = None,
+                 links_fault: Callable[[], str | None] | None = None,
+                 may_resume: Callable[[], bool] | None = None) -> None:
         self.cfg, self.fusion, self.recorder, self.emit = cfg, fusion, recorder, emit
+        self.links_fault = links_fault or (lambda: None)  # why a device link is down, or None
+        self.may_resume = may_resume or (lambda: True)
         self.worker, self.clock = worker, clock
         self.run_meta = run_meta or dict
         self.truth_axes = truth_axes or []
@@ -112,10 +120,36 @@ class SurveyRunner:
         if run is None or run.state != "running":
             return False
         run.state = "paused"
+        run.paused_by_link = None
         self.velocity = None
         self._resumed.clear()
         self.emit(f"survey paused {run.name} line {run.line}")
         return True
+
+    def _pause_for_link(self, run: SurveyRun, line: int, fault: str) -> None:
+        """A device link went down mid-survey: hold (the wheels are stopped anyway) and resume by itself if
+        the link is back within LINK_RESUME_S — otherwise the survey's clock would run on with the robot
+        standing still, shortening the line (what made results depend on the machine's load)."""
+        if not self.pause():
+            return
+        run.paused_by_link = fault
+        run.interruptions.append((line, fault))
+        self.emit(f"survey line {line} interrupted: {fault}; resuming when the link is back")
+        self._line_jobs.append(asyncio.create_task(self._resume_when_linked(run)))
+
+    async def _resume_when_linked(self, run: SurveyRun) -> None:
+        deadline = self.clock() + LINK_RESUME_S
+        while run.state == "paused" and run.paused_by_link is not None:
+            if self.links_fault() is None and self.may_resume():
+                await asyncio.sleep(LINK_SETTLE_S)  # the filter catches up with the reconnected sensors
+                if run.state == "paused" and run.paused_by_link is not None and self.links_fault() is None:
+                    run.paused_by_link = None
+                    self.resume()
+                return
+            if self.clock() > deadline:
+                self.emit(f"survey {run.name}: link still down after {LINK_RESUME_S:g} s; `survey resume` once fixed")
+                return
+            await asyncio.sleep(0.05)
 
     def resume(self) -> bool:
         """Continue a paused survey; whether one was paused."""
@@ -163,7 +197,11 @@ class SurveyRunner:
                 continue
             try:
                 await self._execute(survey, beat)
-            except Exception as exc:
+            except GprbotError as exc:  # the data or a device, not this task: the survey fails, the task goes on
+                survey.state, survey.error = "failed", f"{type(exc).__name__}: {exc}"
+                log.error("survey %s failed: %s", survey.name, exc)
+                self.emit(f"survey failed {survey.name}: {exc}")
+            except Exception as exc:  # a bug: the supervisor restarts the task (and counts it)
                 survey.state, survey.error = "failed", f"{type(exc).__name__}: {exc}"
                 self.emit(f"survey failed {survey.name}: {exc}")
                 raise
@@ -200,7 +238,8 @@ class SurveyRunner:
         self._event(run, "abort" if run.abort_reason else "survey_end", -1,
                     f"survey {'aborted (' + run.abort_reason + ')' if run.abort_reason else 'driven'} {run.name}")
         await self.recorder.close({"run": run.name, "lines": sorted(run.bscans), "traces": len(run.traces),
-                                   "aborted": run.abort_reason})
+                                   "aborted": run.abort_reason,
+                                   "interrupted_lines": [[line, why] for line, why in run.interruptions]})
         if self._skip_outputs or not run.bscans:
             run.state = "aborted" if run.abort_reason else "done"
             return
@@ -233,6 +272,10 @@ class SurveyRunner:
                 await self._beating(self._resumed.wait(), beat)
                 if is_line and run.abort_reason is None:
                     run.windows[segment.line].append([self.clock(), float("nan")])
+                continue
+            fault = self.links_fault()
+            if fault is not None:
+                self._pause_for_link(run, segment.line if is_line else -1, fault)
                 continue
             began = self.clock()
             self.velocity = tracking_velocity(segment, duration - remaining, began, self.fusion.newest_pose(),

@@ -11,6 +11,7 @@ import hashlib
 import math
 import os
 import shlex
+import shutil
 import tempfile
 import time
 from collections.abc import Callable
@@ -24,6 +25,7 @@ from gprbot.shell.protocol import PayloadChunk, ReplyReader, ServerEvent, Server
 DEFAULT_PORT = 7878
 _Item = TypeVar("_Item", ServerReply, PayloadChunk)
 REPLY_TIMEOUT_S = 30.0
+MAX_PULL_BYTES = 64 << 30  # 64 GiB: far above any run file (log segments are 64 MiB), far below 15 digits
 
 PULL_RATE_PER_S = 10.0  # the shell allows 20 commands/s a session (shell.rate_per_s); pull at half that
 
@@ -110,14 +112,29 @@ class ShellConnection:
 
     async def authenticate(self, token: str) -> None:
         """Send `auth TOKEN` (ShellCommandError if refused)."""
-        await self.check(f"auth {token}")
+        await self.check(f"auth {_quote(token)}")  # the server splits lines like a shell
 
-    async def pull_file(self, run: str, name: str, target: Path) -> Path:
-        """Fetch one file, verify its sha256 and move it into place atomically; returns `target`."""
+    async def pull_file(self, run: str, name: str, target: Path, expected_size: int | None = None,
+                        max_size: int = MAX_PULL_BYTES) -> Path:
+        """Fetch one file, verify its sha256 and move it into place atomically; returns `target`.
+
+        The size the server announces is checked before a byte is stored: against the size `files`
+        listed (when given), the cap, and the free space where it goes."""
         header = await self.check(f"pull {_quote(run)} {_quote(name)}")
-        if header.payload_size is None:
+        size = header.payload_size
+        if size is None:
             raise ProtocolError(f"server answered pull without a size: {header.text!r}")
         target.parent.mkdir(parents=True, exist_ok=True)
+        problem = None
+        if expected_size is not None and size != expected_size:
+            problem = f"the server announced {size} bytes for {run}/{name}, but listed {expected_size}"
+        elif size > max_size:
+            problem = f"the server announced {size} bytes for {run}/{name}, over the {max_size}-byte cap"
+        elif size > shutil.disk_usage(target.parent).free:
+            problem = f"{run}/{name} is {size} bytes, more than the free space in {target.parent}"
+        if problem is not None:
+            await self.close()  # the payload follows the header: this connection cannot be used again
+            raise ProtocolError(f"{problem}; refusing it")
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
         digest = hashlib.sha256()
         try:
@@ -198,5 +215,5 @@ async def pull_run(host: str, port: int, run: str, dest: Path, token: str | None
             if wait > 0:
                 await asyncio.sleep(wait)
             last = time.monotonic()
-            written.append(await conn.pull_file(run, name, dest.joinpath(*relative.parts)))
+            written.append(await conn.pull_file(run, name, dest.joinpath(*relative.parts), int(size_text)))
     return written

@@ -10,7 +10,7 @@ import math
 import re
 import shlex
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 
@@ -117,9 +117,10 @@ class Pull:
 
 @dataclass(frozen=True)
 class Auth:
-    """`auth TOKEN`."""
+    """`auth TOKEN`: `token` as split like a shell word, `raw` the rest of the line as typed."""
 
     token: str
+    raw: str = field(default="", compare=False)
 
 
 Command = Empty | Help | Status | Jog | Stop | Estop | Reset | SurveyStart | SurveyControl | Runs | Files | Pull | Auth
@@ -158,6 +159,15 @@ def parse_command(line: str) -> Command:
     """Parse one line (without its line ending) into a Command; raises CommandError if it is invalid."""
     if any((ord(ch) < 32 and ch != "\t") or ord(ch) == 127 for ch in line):
         raise CommandError(ErrorCode.BAD_COMMAND, "control characters are not allowed in a command")
+    verb, _, rest = line.strip().partition(" ")
+    if verb.lower() == "auth" and rest.strip():
+        # A token may hold quotes or backslashes: our client quotes it, a person typing into nc does not.
+        raw = rest.strip()
+        try:
+            words = shlex.split(raw)
+        except ValueError:
+            words = []
+        return Auth(words[0] if len(words) == 1 else raw, raw)
     try:
         tokens = shlex.split(line)
     except ValueError as exc:

@@ -6,12 +6,17 @@ becomes a job on a bounded FIFO; one worker runs the jobs in order and writes th
 line gets exactly one reply, in order (the e-stop's may overtake). A full queue stops reading
 (backpressure), so `handle()` must return promptly. Commands received before the client's end of
 input still run (`printf 'survey start\n' | nc robot 7878` works); after a connection reset they don't.
+
+A session starts *pending*: it must authenticate (or, on a server without a token, send a line) before
+its deadline, or it is closed; the server's `admit` then decides whether there is room for it. An
+admitted session is closed after `idle_timeout_s` without input. Unauthenticated sessions get no
+events. Everything a client can make the session hold is bounded: the job queue, the replies held back
+while a file streams, the transport's output buffer (a client that stops reading is dropped).
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections.abc import Awaitable, Callable
@@ -20,7 +25,7 @@ from pathlib import Path
 
 from gprbot.errors import GprbotError
 from gprbot.shell import runfiles
-from gprbot.shell.auth import token_matches
+from gprbot.shell.auth import AuthGuard, token_matches
 from gprbot.shell.commands import (
     Auth,
     CommandError,
@@ -36,6 +41,7 @@ from gprbot.shell.commands import (
 )
 from gprbot.shell.handler import CommandHandler, EventBus, RobotCommand, SessionInfo
 from gprbot.shell.protocol import LineReceived, LineRejected, LineSplitter, Reply, encode_event, encode_reply
+from gprbot.shell.ratelog import RateLimitedLog
 
 log = logging.getLogger(__name__)
 _STREAM_CHUNK = 1 << 16
@@ -51,6 +57,9 @@ class SessionLimits:
     handler_timeout_s: float = 10.0
     max_output_buffer: int = 1 << 20
     max_auth_failures: int = 5
+    auth_timeout_s: float = 10.0  # a pending session must authenticate (or send a line) within this
+    idle_timeout_s: float | None = 1800.0  # an admitted session without input this long is closed
+    max_deferred_bytes: int = 64 * 1024  # replies and events held back while a file streams
 
 
 class RateLimiter:
@@ -73,6 +82,8 @@ class RateLimiter:
 
 
 Job = Callable[[], Awaitable["Reply | runfiles.OpenedFile"]]
+Admit = Callable[["Session"], "str | None"]  # None: admitted; else why not (the session is then closed)
+_quiet_log = RateLimitedLog(log)  # shared by every session: a flood of clients is one flood of lines
 
 
 class Session:
@@ -89,8 +100,19 @@ class Session:
         token: str | None = None,
         limits: SessionLimits = SessionLimits(),
         clock: Callable[[], float] = time.monotonic,
+        admit: Admit | None = None,
+        pending_deadline_s: float | None = None,
+        guard: AuthGuard | None = None,
+        quiet_log: RateLimitedLog = _quiet_log,
     ) -> None:
         self.info = info
+        self.admitted = admit is None  # the serial console (and tests' bare sessions) start admitted
+        self._admit = admit
+        self._pending_deadline_s = limits.auth_timeout_s if pending_deadline_s is None else pending_deadline_s
+        self._guard = guard
+        self._quiet = quiet_log
+        self._deferred_bytes = 0
+        self.events_dropped = 0
         self._handler, self._reader, self._writer, self._events = handler, reader, writer, events
         self._token, self._limits, self._clock = token, limits, clock
         self._splitter = LineSplitter(limits.max_line)
@@ -106,10 +128,23 @@ class Session:
         """Read and answer lines until end of input; then finish the queued replies and close."""
         unsubscribe = self._events.subscribe(self._send_event)
         worker = asyncio.create_task(self._work(), name=f"shell-session-{self.info.id}-worker")
+        loop = asyncio.get_running_loop()
+        pending_until = loop.time() + self._pending_deadline_s  # fixed: trickling bytes do not extend it
         try:
             while not self._closed:
+                if self.admitted:
+                    limit, why = self._limits.idle_timeout_s, f"idle for {self._limits.idle_timeout_s:g} s"
+                else:
+                    limit = max(0.0, pending_until - loop.time())
+                    why = ("not authenticated" if self._token is not None else "no command") + \
+                        f" within {self._pending_deadline_s:g} s"
                 try:
-                    data = await self._reader.read(4096)
+                    async with asyncio.timeout(limit):
+                        data = await self._reader.read(4096)
+                except TimeoutError:
+                    self._quiet.log(logging.INFO, "timeout", "shell: closing %s: %s", self.info.peer, why)
+                    self._send_line(encode_event(f"closing: {why}"))
+                    break
                 except (ConnectionError, OSError):
                     break
                 if not data:
@@ -124,16 +159,20 @@ class Session:
         finally:
             unsubscribe()
             worker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await worker
+            await asyncio.wait({worker})  # not `await worker`: that would swallow a cancel of this task
             self.close()
 
     def close(self) -> None:
-        """Drop the connection now (idempotent)."""
+        """Drop the connection now (idempotent); output already written is still sent."""
         self._closed = True
         if not self._writer.is_closing():
             self._writer.close()
         self._reader.feed_eof()
+
+    def abort(self) -> None:
+        """Drop the connection and whatever output it has not sent (shutdown, a client not reading)."""
+        self.close()
+        self._writer.transport.abort()
 
     async def _dispatch(self, item: LineReceived | LineRejected) -> None:
         if isinstance(item, LineRejected):
@@ -147,6 +186,8 @@ class Session:
         if isinstance(command, Estop):
             self._send_line(encode_reply(await self._estop()))
             return
+        if not self.admitted and self._token is None and not self._admitted_now():
+            return
         if not self._rate.allow(self._clock()):
             limit = self._limits.rate_per_s
             await self._queue_reply(Reply.failure(ErrorCode.RATE_LIMITED, f"more than {limit:g} commands/s; slow down"))
@@ -156,7 +197,7 @@ class Session:
             topic = command.topic
             await self._queue(lambda: self._help(topic))
         elif isinstance(command, Auth):
-            await self._queue_reply(self._authenticate(command.token))
+            await self._queue_reply(self._authenticate(command))
         elif self._token is not None and not self.info.authenticated:
             text = "send `auth TOKEN` first (estop and help work without)"
             await self._queue_reply(Reply.failure(ErrorCode.UNAUTHORIZED, text))
@@ -182,21 +223,50 @@ class Session:
         except CommandError as exc:
             return Reply.failure(exc.code, exc.text)
 
-    def _authenticate(self, given: str) -> Reply:
+    def _admitted_now(self) -> bool:
+        """Ask the server for a slot; without one, reply busy and end the session."""
+        refusal = self._admit(self) if self._admit is not None else None
+        if refusal is None:
+            self.admitted = True
+            return True
+        self._send_line(encode_reply(Reply.failure(ErrorCode.BUSY, refusal)))
+        self._closed = True
+        return False
+
+    def _authenticate(self, command: Auth) -> Reply:
         if self._token is None:
             return Reply.success("auth not required on this server")
-        if token_matches(self._token, given):
+        host = self.info.peer.rpartition(":")[0] or self.info.peer
+        now = self._clock()
+        refusal = self._guard.refusal(host, now) if self._guard is not None else None
+        if refusal is not None:
+            self._closed = True
+            self._quiet.log(logging.WARNING, f"auth:{host}", "shell: %s: %s", self.info.peer, refusal)
+            return Reply.failure(ErrorCode.UNAUTHORIZED, refusal)
+        # the quoted word (what our client sends) or the raw rest of the line (typed into nc)
+        good = token_matches(self._token, command.token) | token_matches(self._token, command.raw or command.token)
+        if good:
+            if self._guard is not None:
+                self._guard.succeeded(host)
+            if not self.admitted:
+                refusal = self._admit(self) if self._admit is not None else None
+                if refusal is not None:
+                    self._closed = True
+                    return Reply.failure(ErrorCode.BUSY, refusal)
+                self.admitted = True
             self.info.authenticated = True
             self._auth_failures = 0
             return Reply.success("auth")
         self._auth_failures += 1
-        log.warning("shell: bad token from %s (%d)", self.info.peer, self._auth_failures)
-        if self._auth_failures >= self._limits.max_auth_failures:
+        locked = self._guard.failed(host, now) if self._guard is not None else False
+        self._quiet.log(logging.WARNING, f"auth:{host}", "shell: bad token from %s (%d)",
+                        self.info.peer, self._auth_failures)
+        if locked or self._auth_failures >= self._limits.max_auth_failures:
             self._closed = True  # the reply below is still written, then the session ends
         return Reply.failure(ErrorCode.UNAUTHORIZED, "wrong token")
 
     async def _estop(self) -> Reply:
-        log.warning("shell: estop from %s", self.info.peer)
+        self._quiet.log(logging.WARNING, f"estop:{self.info.peer}", "shell: estop from %s", self.info.peer)
         try:
             return await asyncio.wait_for(self._handler.estop(self.info), self._limits.handler_timeout_s)
         except Exception as exc:
@@ -266,23 +336,33 @@ class Session:
                     await self._writer.drain()
             finally:
                 self._in_payload = False
-                deferred, self._deferred = self._deferred, []
+                deferred, self._deferred, self._deferred_bytes = self._deferred, [], 0
                 for data in deferred:
                     self._send_line(data)
 
-    def _send_line(self, data: bytes) -> None:
+    def _send_line(self, data: bytes, droppable: bool = False) -> None:
+        """Write a reply or event line now, or hold it back while a file streams (bounded either way)."""
         if self._writer.is_closing():
             return
         if self._in_payload:
+            if self._deferred_bytes + len(data) > self._limits.max_deferred_bytes:
+                if droppable:
+                    self.events_dropped += 1
+                    return
+                self._drop(f"{self._deferred_bytes} bytes of replies held back during a pull")
+                return
             self._deferred.append(data)
-        else:
-            self._writer.write(data)
-
-    def _send_event(self, text: str) -> None:
-        if self._writer.is_closing():
+            self._deferred_bytes += len(data)
             return
         if self._writer.transport.get_write_buffer_size() > self._limits.max_output_buffer:
-            log.warning("shell: %s is not reading its events; dropping it", self.info.peer)
-            self.close()
+            self._drop("it is not reading what it is sent")
             return
-        self._send_line(encode_event(text))
+        self._writer.write(data)
+
+    def _drop(self, why: str) -> None:
+        self._quiet.log(logging.WARNING, "drop", "shell: dropping %s: %s", self.info.peer, why)
+        self.close()
+
+    def _send_event(self, text: str) -> None:
+        if self.info.authenticated:  # an unauthenticated client learns nothing about the robot
+            self._send_line(encode_event(text), droppable=True)

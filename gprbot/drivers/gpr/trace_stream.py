@@ -141,6 +141,11 @@ class _Pending(NamedTuple):
     length: int
 
 
+class _ScanIndex(NamedTuple):
+    candidates: NDArray[np.intp]  # buffer positions whose bytes could start a plausible header
+    bad_prefix: tuple[NDArray[np.int64], ...]  # per alignment a: count of bad floats at a, a+4, ... before k
+
+
 class TraceStreamParser:
     """Frames the data socket's byte stream into traces, resynchronising after corrupt bytes.
 
@@ -172,6 +177,7 @@ class TraceStreamParser:
         self._offset = 0  # stream offset of _buf[0]
         self._pending: _Pending | None = None  # parsed frame at _pos, awaiting the next header
         self._scanning = False  # inside a resync episode
+        self._index: _ScanIndex | None = None  # built at the first resync of a feed, dropped after it
 
     @property
     def drops(self) -> int:
@@ -180,9 +186,13 @@ class TraceStreamParser:
 
     def feed(self, data: bytes) -> list[TraceEvent]:
         """Add bytes from the socket; return the events they complete."""
+        self._index = None
         self._buf += data
         events: list[TraceEvent] = []
-        self._advance(events, at_eof=False)
+        try:
+            self._advance(events, at_eof=False)
+        finally:
+            self._index = None  # it holds views of the buffer, which must be resizable again
         if self._pos:
             del self._buf[: self._pos]
             self._offset += self._pos
@@ -193,7 +203,10 @@ class TraceStreamParser:
         """End of stream: deliver the last frame if a header confirms it, or it ends the stream and its
         number directly follows the last one delivered; count the rest as skipped."""
         events: list[TraceEvent] = []
-        self._advance(events, at_eof=True)
+        try:
+            self._advance(events, at_eof=True)
+        finally:
+            self._index = None
         self.bytes_skipped += len(self._buf) - self._pos
         self._offset += len(self._buf)
         self._buf.clear()
@@ -215,13 +228,13 @@ class TraceStreamParser:
                 length = header.header_size + 4 * self.points_per_trace
                 if avail < length:
                     return
-                samples = np.frombuffer(
-                    self._buf, dtype="<f4", count=self.points_per_trace, offset=self._pos + header.header_size
-                ).astype(np.float32)
-                if not np.all(np.abs(samples) <= MAX_ABS_SAMPLE_MV):  # also false for NaN
+                if not self._samples_plausible(self._pos + header.header_size):
                     if not self._resync(events, "non-finite or absurd samples", self._pos + 1):
                         return
                     continue
+                samples = np.frombuffer(
+                    self._buf, dtype="<f4", count=self.points_per_trace, offset=self._pos + header.header_size
+                ).astype(np.float32)
                 self._pending = _Pending(header, samples, length)
             pending = self._pending
             after = avail - pending.length
@@ -277,11 +290,22 @@ class TraceStreamParser:
         return len(self._buf) - found >= HEADER_SIZE
 
     def _scan(self, start: int) -> int | None:
-        """The first position >= start holding a plausible header, vectorised over the buffer."""
-        chunk = np.frombuffer(bytes(self._buf[start:]), dtype=np.uint8)
-        n = len(chunk) - (HEADER_SIZE - 1)
-        if n <= 0:
-            return None
+        """The first position >= start holding a plausible header (from the buffer's candidate index)."""
+        index = self._index if self._index is not None else self._build_index()
+        candidates = index.candidates
+        at = int(np.searchsorted(candidates, start))
+        while at < len(candidates):
+            position = int(candidates[at])
+            if self._header_at(position) is not None:
+                return position
+            at += 1
+        return None
+
+    def _build_index(self) -> _ScanIndex:
+        """Candidate header positions and per-alignment counts of bad floats, once per feed: every
+        resync inside that feed is then a search, so garbage costs work linear in its length."""
+        chunk = np.frombuffer(self._buf, dtype=np.uint8)
+        n = max(0, len(chunk) - (HEADER_SIZE - 1))
         word = chunk.astype(np.uint16)
         header_size = word[18 : 18 + n] | (word[19 : 19 + n] << 8)
         stacks = word[16 : 16 + n] | (word[17 : 17 + n] << 8)
@@ -291,11 +315,24 @@ class TraceStreamParser:
             mask &= stacks == self.stacks
         else:
             mask &= (stacks != 0) & ((stacks & (stacks - 1)) == 0)
-        for candidate in np.flatnonzero(mask):
-            position = start + int(candidate)
-            if self._header_at(position) is not None:
-                return position
-        return None
+        bad_prefix = []
+        for alignment in range(4):
+            count = max(0, (len(chunk) - alignment) // 4)
+            floats = np.frombuffer(self._buf, dtype="<f4", count=count, offset=alignment) if count else np.zeros(0)
+            bad = ~(np.abs(floats) <= MAX_ABS_SAMPLE_MV)  # also true for NaN
+            bad_prefix.append(np.concatenate(([0], np.cumsum(bad, dtype=np.int64))))
+        self._index = _ScanIndex(np.flatnonzero(mask), tuple(bad_prefix))
+        return self._index
+
+    def _samples_plausible(self, start: int) -> bool:
+        """Whether the points_per_trace float32 samples at buffer position `start` are finite and in range."""
+        if self._index is not None:  # inside a resync: O(1) from the prefix counts
+            prefix = self._index.bad_prefix[start % 4]
+            first = start // 4
+            if first + self.points_per_trace < len(prefix):
+                return bool(prefix[first + self.points_per_trace] == prefix[first])
+        samples = np.frombuffer(self._buf, dtype="<f4", count=self.points_per_trace, offset=start)
+        return bool(np.all(np.abs(samples) <= MAX_ABS_SAMPLE_MV))  # also false for NaN
 
     def _header_at(self, position: int) -> _Header | None:
         h = _Header(*HEADER.unpack_from(self._buf, position))
