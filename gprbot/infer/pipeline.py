@@ -59,15 +59,17 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float,
 
 
 @functools.lru_cache(maxsize=2)
-def migrationnet_interpreter(configured_path: str, threads: int) -> MigrationNetInterpreter:
+def migrationnet_interpreter(
+    configured_path: str, threads: int, models_dir: str | None = None
+) -> MigrationNetInterpreter:
     """MigrationNet's session, loaded and warmed up once per process (the worker keeps it between lines)."""
-    return MigrationNetInterpreter(model_path(configured_path), threads=threads)
+    return MigrationNetInterpreter(model_path(configured_path, models_dir), threads=threads)
 
 
 @functools.lru_cache(maxsize=2)
-def gprnet_completion(configured_path: str, threads: int) -> GprnetCompletion:
+def gprnet_completion(configured_path: str, threads: int, models_dir: str | None = None) -> GprnetCompletion:
     """GPRNet's session, loaded and warmed up once per process."""
-    return GprnetCompletion(model_path(configured_path), threads, expect_name="gprnet")
+    return GprnetCompletion(model_path(configured_path, models_dir), threads, expect_name="gprnet")
 
 
 def interpret_line(
@@ -75,7 +77,8 @@ def interpret_line(
 ) -> LineResult:
     """Interpret one preprocessed line (MigrationNet or classical, as configured) and register it in 3D."""
     if cfg.interpretation.method == "migrationnet":
-        interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads)
+        interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads,
+                                              cfg.models_dir)
         section = interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
     else:
         section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
@@ -106,6 +109,9 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
 
     t0 = time.perf_counter()
     lines = tuple(interpret_line(line, b, cfg, velocity, hints) for line, b in processed.items())
+    # Each line was interpreted AT the survey's velocity, so its section would say "given"; the truth is
+    # how the survey found it (all lines' hyperbolas, or the configured eps_r).
+    lines = tuple(replace(lr, section=replace(lr.section, velocity_estimated=estimated)) for lr in lines)
     timings["interpret"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -115,7 +121,8 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     if cfg.reconstruction.completion == "gprnet":
         # GPRNet gives the dense cloud; the pipes (pipes.json) still come from the fit through the slices,
         # which needs to know which points came from which survey line.
-        completion = gprnet_completion(cfg.reconstruction.gprnet_model, cfg.reconstruction.model_threads)
+        completion = gprnet_completion(cfg.reconstruction.gprnet_model, cfg.reconstruction.model_threads,
+                                       cfg.models_dir)
         reconstruction = gprnet_reconstruction(slices, sparse, cfg.reconstruction, completion, rng)
         timings["gprnet"] = completion.last_seconds
     else:
