@@ -40,8 +40,13 @@ class SiteAxis:
     @property
     def label(self) -> str:
         """Axis label saying which way the robot drove."""
+        if self.name == "along":
+            return "distance from the first trace (m)"
         way = "robot drove →" if self.sign > 0 else "robot drove ←"
         return f"site {self.name} (m)   [{way}]"
+
+
+ALONG_TRACK = SiteAxis("along", 0.0, 1.0)
 
 
 def site_axis(bscan: BScan) -> SiteAxis:
@@ -85,18 +90,25 @@ def _uniform_columns(coord: NDArray[np.float64], spacing: float) -> tuple[NDArra
     return grid, order[nearest]
 
 
-def write_bscan_png(
-    path: str | Path, bscan: BScan, velocity_m_per_ns: float | None = None,
-    velocity_note: str = "", title: str = "B-scan",
-) -> None:
-    """The B-scan: site coordinate across, two-way time (and depth at the velocity) down, colour bar, processing."""
+def bscan_image(bscan: BScan, site_frame: bool = True) -> tuple[SiteAxis, NDArray[np.float64], NDArray[np.float64]]:
+    """The B-scan as drawn: its horizontal axis, the uniform grid on it (m), and (samples, columns) amplitudes."""
     from gprbot.gpr.bscan import grid_spacing_m
 
-    axis = site_axis(bscan)
+    axis = site_axis(bscan) if site_frame else ALONG_TRACK
     along = bscan.along_track_m()
-    coord = axis.of(along)
-    grid, columns = _uniform_columns(coord, grid_spacing_m(along))
-    data = np.asarray(bscan.data, dtype=np.float64)[columns].T  # (samples, columns)
+    grid, columns = _uniform_columns(axis.of(along), grid_spacing_m(along))
+    return axis, grid, np.asarray(bscan.data, dtype=np.float64)[columns].T
+
+
+def write_bscan_png(
+    path: str | Path, bscan: BScan, velocity_m_per_ns: float | None = None,
+    velocity_note: str = "", title: str = "B-scan", site_frame: bool = True,
+) -> None:
+    """The B-scan: site coordinate across, two-way time (and depth at the velocity) down, colour bar, processing.
+
+    site_frame=False (a file without poses): distance from the first trace across instead.
+    """
+    axis, grid, data = bscan_image(bscan, site_frame)
     n_samples = data.shape[0]
     t0 = bscan.t0_ns if math.isfinite(bscan.t0_ns) else 0.0
     t_top, t_bottom = -t0, (n_samples - 1) * bscan.dt_ns - t0
@@ -146,7 +158,7 @@ def write_cross_section_png(
     With the line's B-scan the horizontal axis is the site coordinate (as on the map); velocity_note is the
     velocity's true provenance (the survey's, when the section was interpreted at a velocity found for all lines).
     """
-    axis = site_axis(bscan) if bscan is not None else SiteAxis("along-track", 0.0, 1.0)
+    axis = site_axis(bscan) if bscan is not None else ALONG_TRACK
     x = axis.of(section.x_m)
     z = np.asarray(section.z_m, dtype=np.float64)
     picture = np.asarray(envelope(section.image), dtype=np.float64)
@@ -173,7 +185,7 @@ def write_cross_section_png(
                     bbox={"boxstyle": "round,pad=0.15", "fc": "black", "alpha": 0.6, "lw": 0})
     for r in section.rebars:
         ax.plot([float(axis.of(r.x_m))], [r.depth_m], marker="o", markersize=5, fillstyle="none", color=MAGENTA)
-    ax.set_xlabel(axis.label if bscan is not None else "along-track distance (m)")
+    ax.set_xlabel(axis.label)
     ax.set_ylabel("depth below the surface (m)")
     colour_bar = fig.colorbar(image, ax=ax, fraction=0.03, pad=0.02)
     colour_bar.set_label("migrated envelope")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -96,19 +96,35 @@ def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detecti
     return tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in found.rebars)
 
 
-def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.Generator) -> SurveyResult:
-    """Interpret every line of a survey and complete the registered slices into pipes."""
+def survey_steps(n_lines: int) -> int:
+    """How many times reconstruct_survey calls on_step: preprocess, velocity, each line, completion."""
+    return n_lines + 3
+
+
+def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.Generator,
+                       on_step: Callable[[str], None] | None = None) -> SurveyResult:
+    """Interpret every line of a survey and complete the registered slices into pipes.
+
+    on_step(what) is called after each step (for a progress bar; survey_steps(n) steps in all).
+    """
+    step = on_step or (lambda _: None)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     processed = {line: preprocess(b, cfg.gpr) for line, b in sorted(bscans.items())}
     timings["preprocess"] = time.perf_counter() - t0
+    step("preprocessed")
 
     t0 = time.perf_counter()
     velocity, estimated, hints = survey_velocity(processed, cfg)
     timings["velocity"] = time.perf_counter() - t0
+    step("velocity")
 
     t0 = time.perf_counter()
-    lines = tuple(interpret_line(line, b, cfg, velocity, hints) for line, b in processed.items())
+    interpreted = []
+    for line, b in processed.items():
+        interpreted.append(interpret_line(line, b, cfg, velocity, hints))
+        step(f"line {line}")
+    lines = tuple(interpreted)
     # Each line was interpreted AT the survey's velocity, so its section would say "given"; the truth is
     # how the survey found it (all lines' hyperbolas, or the configured eps_r).
     lines = tuple(replace(lr, section=replace(lr.section, velocity_estimated=estimated)) for lr in lines)
@@ -128,4 +144,5 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     else:
         reconstruction = geometric_completion(slices, cfg.reconstruction, rng)
     timings["reconstruct"] = time.perf_counter() - t0
+    step("completion")
     return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings)
