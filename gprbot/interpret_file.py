@@ -109,6 +109,11 @@ def _migrationnet_section(bscan: BScan, gpr: GprConfig, cfg: InterpretationConfi
     return net.interpret(preprocess(bscan, gpr), gpr, cfg, v)
 
 
+def shown_bscan(bscan: BScan, gpr: GprConfig, t0_ns: float) -> BScan:
+    """The B-scan as bscan.png shows it: preprocessed at the chain's time zero (not a second estimate of it)."""
+    return preprocess(replace(bscan, t0_ns=t0_ns), gpr)
+
+
 def default_out_dir(path: Path, config: Config | None = None) -> Path:
     """Where `gprbot interpret FILE` writes without --out: runs_dir/interpret-<stem>-<time>."""
     cfg = config or load_config()
@@ -189,7 +194,7 @@ def interpret_file(
     )
     v_text = {"given": "given", "estimated": f"estimated ±{result.velocity_sigma:.4f}, {result.velocity_method}",
               "fallback": "not estimated"}[result.velocity_source]
-    write_bscan_png(out / "bscan.png", preprocess(bscan, replace(gpr, pre_trigger_ns=prep.t0_ns)), result.velocity,
+    write_bscan_png(out / "bscan.png", shown_bscan(bscan, gpr, prep.t0_ns), result.velocity,
                     v_text, title=path.name, site_frame=False)
     write_cross_section_png(out / "section.png", section, velocity_note=v_text, title=path.name)
     lines = [

@@ -183,6 +183,13 @@ def test_ply_reads_back_with_plyfile(run: dict[str, Any]) -> None:
                                run["result"].reconstruction.dense, atol=1e-6)
 
 
+def test_every_section_says_how_the_survey_velocity_was_found(run: dict[str, Any]) -> None:
+    result = run["result"]
+    assert result.velocity_estimated  # no eps_r configured: estimated from all lines' hyperbolas
+    # before: each line was interpreted AT that velocity and its section said "given"
+    assert all(lr.section.velocity_estimated for lr in result.lines)
+
+
 def test_pictures_are_written(run: dict[str, Any]) -> None:
     for name in ("depth_slices.png", "render3d.png", "bscan_line01.png", "section_line01.png", "map.png"):
         assert (run["out"] / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name

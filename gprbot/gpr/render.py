@@ -10,6 +10,7 @@ Colours: the mask outline is green, the truth outline (if given) red, pipes yell
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -130,12 +131,13 @@ def write_bscan_png(
             return 2.0 * np.asarray(d, dtype=np.float64) / v
 
         depth_axis = ax.secondary_yaxis("right", functions=(to_depth, to_time))
-        depth_axis.set_ylabel(f"depth (m) at v = {v:.4f} m/ns" + (f" ({velocity_note})" if velocity_note else ""))
+        depth_axis.set_ylabel(f"depth (m) at v = {v:.4f} m/ns")
     colour_bar = fig.colorbar(image, ax=ax, pad=0.02, fraction=0.04)
     colour_bar.set_label("amplitude (after processing, clipped at 99.5 %)")
     ax.set_title(f"{title}: {bscan.data.shape[0]} traces × {n_samples} samples, dt = {bscan.dt_ns:.3g} ns")
-    fig.supxlabel(f"processing: {processing_note(bscan.processing)}; time zero at {t0:.2f} ns of the record",
-                  fontsize=8, color="#444444")
+    velocity = f"; velocity {velocity_note}" if velocity_m_per_ns and velocity_note else ""
+    footer = f"processing: {processing_note(bscan.processing)}; time zero at {t0:.2f} ns of the record{velocity}"
+    fig.supxlabel(textwrap.fill(footer, 150), fontsize=8, color="#444444")
     save_png(fig, path)
 
 
@@ -192,8 +194,8 @@ def write_cross_section_png(
     kind = velocity_note or ("estimated" if section.velocity_estimated else "given")
     scale = "true scale" if exaggeration == 1.0 else f"vertical exaggeration ×{exaggeration:g}"
     rebars = f", {len(section.rebars)} rebars" if section.rebars else ""
-    ax.set_title(f"{title}: v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), "
-                 f"{len(section.detections)} pipes{rebars}; {scale}", fontsize=10)
+    ax.set_title(textwrap.fill(f"{title}: v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), "
+                               f"{len(section.detections)} pipes{rebars}; {scale}", 110), fontsize=10)
     legend = "green: cross-section mask" + ("   red: truth" if truth_mask is not None else "")
     fig.supxlabel(f"{legend}   yellow +: pipe centre (label: diameter, depth of cover to its top)   magenta o: rebar",
                   fontsize=8, color="#444444")
