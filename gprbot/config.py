@@ -422,15 +422,20 @@ def parse_config(text: str, source: str = "<string>") -> Config:
 
 
 def load_config(path: str | Path | None = None) -> Config:
-    """Load a config file; with no path, the embedded simulation default (configs/sim.yaml)."""
+    """Load a config file, or a built-in one by name (sim, sim_learned, robot); with no path, configs/sim.yaml."""
     if path is None:
         text = resources.files("gprbot").joinpath("configs/sim.yaml").read_text()
         return parse_config(text, "configs/sim.yaml")
     p = Path(path)
+    builtin = resources.files("gprbot").joinpath(f"configs/{p.name}.yaml")
+    if not p.exists() and p.name == str(path) and builtin.is_file():  # a built-in name: works from a wheel too
+        return parse_config(builtin.read_text(), f"configs/{p.name}.yaml")
     try:
         text = p.read_text()
     except OSError as exc:
-        raise ConfigError(f"cannot read config file {p}: {exc.strerror}") from exc
+        names = ", ".join(sorted(f.name.removesuffix(".yaml") for f in resources.files("gprbot").joinpath("configs")
+                                 .iterdir() if f.name.endswith(".yaml")))
+        raise ConfigError(f"cannot read config file {p}: {exc.strerror} (built-in configs: {names})") from exc
     return parse_config(text, str(p))
 
 

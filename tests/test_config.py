@@ -92,3 +92,10 @@ def test_models_are_found_in_an_installed_wheel_or_models_dir(tmp_path: Path, mo
     assert model_path("models/migrationnet.onnx", str(mine)) == mine / "migrationnet.onnx"
     with pytest.raises(ModelError, match=f"not in models_dir {mine}"):
         model_path("models/gprnet.onnx", str(mine))
+
+
+def test_builtin_configs_load_by_name(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # an installed gprbot: no configs/ directory in sight
+    assert load_config("sim_learned").interpretation.method == "migrationnet"
+    with pytest.raises(ConfigError, match="built-in configs: robot, sim, sim_learned"):
+        load_config("no_such_config")

@@ -29,6 +29,7 @@ from gprbot.infer.run_files import write_survey_outputs
 from gprbot.infer.worker import InferenceWorker
 from gprbot.messages import Trace
 from gprbot.motion.planner import Segment, SurveyPlan, plan_survey
+from gprbot.retention import prune_runs
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
 from gprbot.robot.tracking import tracking_velocity
@@ -179,6 +180,10 @@ class SurveyRunner:
         header = make_run_header(self.cfg, time.time(), run=run.name, kind="survey",
                                  survey=to_dict(run.survey), **self.run_meta())
         self.recorder.open(run.run_dir, header)
+        # Old runs beyond the configured limits go now, before this one fills the disk (off the event loop).
+        pruned = await asyncio.to_thread(prune_runs, Path(self.cfg.runs_dir), self.cfg.retention, {run.name})
+        if pruned:
+            self.emit(f"retention: deleted {len(pruned)} old runs ({', '.join(r.name for r in pruned)})")
         await self._beating(self._wait_fusion(), beat)
         if run.abort_reason is None:
             run.state = "running"
