@@ -9,8 +9,13 @@ from __future__ import annotations
 import io
 import os
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
+# Under systemd (ProtectHome=yes, a read-only /) matplotlib's ~/.config/matplotlib is not writable: it
+# would build its font cache in a temp dir on every start, with a warning. The unit's StateDirectory is.
+if "MPLCONFIGDIR" not in os.environ and os.environ.get("STATE_DIRECTORY"):
+    os.environ["MPLCONFIGDIR"] = os.path.join(os.environ["STATE_DIRECTORY"].split(":")[0], "matplotlib")
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from gprbot.atomic_files import write_bytes_atomic
 from gprbot.errors import DataFormatError

@@ -110,3 +110,17 @@ def test_interpret_draws_the_bscan_at_the_chains_time_zero() -> None:
     raw = replace(_line(0.45), t0_ns=float("nan"))  # a file without time zero: the chain estimates it
     shown = shown_bscan(raw, GPR, 0.61)
     assert shown.t0_ns == 0.61  # before: preprocess estimated time zero a second time (0.73 ns on File____002)
+
+
+def test_under_systemd_matplotlib_caches_in_the_state_directory(tmp_path: Path) -> None:
+    import os
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if k != "MPLCONFIGDIR"}
+    env |= {"HOME": str(tmp_path / "no-home"), "STATE_DIRECTORY": str(tmp_path / "state"), "XDG_CONFIG_HOME": ""}
+    (tmp_path / "no-home").mkdir(mode=0o500)  # ProtectHome: nothing writable there
+    done = subprocess.run([sys.executable, "-c", "import os, gprbot.plotting; print(os.environ['MPLCONFIGDIR'])"],
+                          env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == str(tmp_path / "state" / "matplotlib")
+    assert "temporary cache directory" not in done.stderr
