@@ -40,7 +40,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         out_dir = base / scene.name if len(names) > 1 else base
         demo = run_demo(cfg, scene, out_dir)
         r = demo.result
-        summaries.append(_demo_summary(demo))
+        summaries.append(_demo_summary(scene.name, demo))
         if not args.json:
             v_note = "estimated from the hyperbolas" if r.velocity_estimated else "from the configured eps_r"
             print(f"scene {scene.name}: {len(r.lines)} lines, {len(r.reconstruction.pipes)} pipes found, "
@@ -54,13 +54,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0 if all_ok or not args.check else 3
 
 
-def _demo_summary(demo: DemoResult) -> dict[str, Any]:
+def _demo_summary(scene: str, demo: DemoResult) -> dict[str, Any]:
     """One scene's demo as plain data (for --json)."""
     import dataclasses
 
     r = demo.result
     return {
-        "scene": demo.out_dir.name if demo.out_dir else None, "out_dir": str(demo.out_dir),
+        "scene": scene, "out_dir": str(demo.out_dir),
         "lines": len(r.lines), "pipes_found": len(r.reconstruction.pipes),
         "velocity_m_per_ns": round(r.velocity_m_per_ns, 5), "velocity_estimated": r.velocity_estimated,
         "seconds": round(demo.seconds, 2), "within_bounds": demo.ok,

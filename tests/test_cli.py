@@ -57,3 +57,15 @@ def test_bad_config_key_is_one_clear_error(tmp_path: Path, capsys: pytest.Captur
     bad.write_text("survey:\n  spacing: 0.1\n")
     assert main(["demo", "--offline", "--config", str(bad), "--out", str(tmp_path / "run")]) == 1
     _one_error_line(capsys, "survey.spacing", "unknown key")
+
+
+def test_demo_json_is_the_only_thing_on_stdout(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    small = tmp_path / "small.yaml"
+    small.write_text("survey:\n  lines: 2\n  length_m: 0.8\nsim:\n  poses: noise\n")  # seconds, not a minute
+    assert main(["demo", "--offline", "--config", str(small), "--out", str(tmp_path / "run"), "--json"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    (scene,) = summary["scenes"]
+    assert scene["scene"] == "paper_slab" and scene["lines"] == 2 and scene["out_dir"] == str(tmp_path / "run")
+    assert isinstance(scene["within_bounds"], bool) and scene["matches"] and "truth" in scene["matches"][0]
+    assert captured.err == ""  # no progress bar: stderr is not a terminal
