@@ -24,6 +24,7 @@ from gprbot.plotting import new_figure, save_png
 GREEN, RED, YELLOW, MAGENTA = "#00c800", "#ff0000", "#ffdc00", "#ff00ff"
 _STEP_NAMES = {"dewow": "dewow", "background": "background removed"}
 _FIG_SIZE_IN = (10.0, 5.0)
+_SECTION_WIDTH_IN = 8.2  # the image's width inside a 10-inch figure, beside the depth labels and colour bar
 
 
 @dataclass(frozen=True)
@@ -168,8 +169,11 @@ def write_cross_section_png(
     left, right = (0, -1) if axis.sign > 0 else (-1, 0)
     extent = (float(x[left]), float(x[right]), float(z[-1]), float(z[0]))
     exaggeration = vertical_exaggeration(abs(extent[1] - extent[0]), extent[2] - extent[3])
+    # the figure as tall as the section drawn at its aspect (plus titles), so the colour bar fits the image
+    drawn_ratio = exaggeration * (extent[2] - extent[3]) / max(abs(extent[1] - extent[0]), 1e-9)
+    height_in = min(max(_SECTION_WIDTH_IN * drawn_ratio + 1.7, 3.2), 9.0)
 
-    fig = new_figure(_FIG_SIZE_IN)
+    fig = new_figure((_FIG_SIZE_IN[0], height_in))
     ax = fig.add_subplot(1, 1, 1)
     shown = picture if axis.sign > 0 else picture[:, ::-1]
     image = ax.imshow(shown, cmap="gray", vmin=0.0, vmax=clip, extent=extent, interpolation="nearest")
