@@ -84,15 +84,21 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, scene=args.scene))
     scene = load_scene(cfg.sim.scene)  # a bad scene is one clear error before any daemon starts
     dest = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("pulled-%Y%m%d-%H%M%S")
-    print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)")
-    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", flush=True)))
-    print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}")
+    talk = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document alone
+    print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)", file=talk)
+    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", file=talk, flush=True)))
+    print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}", file=talk)
     # The operator's copy of pipes.json, judged against the simulated scene's truth.
     found = read_pipes_json(dest / "pipes.json")
     matches, extras = compare_to_truth(found, scene, survey_region(cfg))
-    print(format_truth_table(matches, extras, found))
     ok = within_bounds(matches)
-    print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if ok else 'NO'}")
+    if args.json:
+        print(json.dumps({"run": result.run, "out_dir": str(dest), "pulled": len(result.pulled), "scene": scene.name,
+                          "pipes_found": len(found), "within_bounds": ok, "extra_pipes": list(extras),
+                          "matches": [dataclasses.asdict(m) for m in matches]}, indent=2))
+    else:
+        print(format_truth_table(matches, extras, found))
+        print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if ok else 'NO'}")
     if result.exit_status != 0:
         return result.exit_status
     return 0 if ok or not args.check else 3
@@ -245,7 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--offline", action="store_true",
                       help="process the simulated survey directly (fast, no daemon); implied by --scene all")
     demo.add_argument("--check", action="store_true", help="exit 3 unless every pipe is within the bounds")
-    demo.add_argument("--json", action="store_true", help="print the summary as JSON (offline mode)")
+    demo.add_argument("--json", action="store_true", help="print the summary as JSON (the rest goes to stderr)")
     demo.set_defaults(func=_cmd_demo)
 
     info = sub.add_parser("info", help="print the header of a GPR file (DZT, DT1+HD, RD3/RD7+RAD, SEG-Y, SU, gprMax)")

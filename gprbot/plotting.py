@@ -14,8 +14,8 @@ import os
 if "MPLCONFIGDIR" not in os.environ and os.environ.get("STATE_DIRECTORY"):
     os.environ["MPLCONFIGDIR"] = os.path.join(os.environ["STATE_DIRECTORY"].split(":")[0], "matplotlib")
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from gprbot.atomic_files import write_bytes_atomic
 from gprbot.errors import DataFormatError
