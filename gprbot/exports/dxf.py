@@ -8,6 +8,7 @@ Coordinates are the site frame, or the configured projected CRS (easting, northi
 from __future__ import annotations
 
 import io
+import math
 import os
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -15,6 +16,7 @@ from typing import Any
 import ezdxf
 import numpy as np
 from ezdxf import colors as dxf_colors
+from ezdxf.enums import TextEntityAlignment
 from numpy.typing import NDArray
 
 from gprbot.atomic_files import write_bytes_atomic
@@ -22,6 +24,7 @@ from gprbot.exports.georef import Georeference
 from gprbot.infer.completion import PipeModel, pipe_colors
 
 APP_ID = "GPRBOT"
+LABEL_HEIGHT_M = 0.025  # 2.5 cm text: readable at 1:20, the scale of a slab survey
 LAYERS = {"PIPES": 1, "PIPE_LABELS": 7, "REBARS": 6, "SURVEY_LINES": 5}  # ACI colours
 
 
@@ -55,10 +58,16 @@ def dxf_bytes(pipes: Sequence[PipeModel], rebars: Sequence[Mapping[str, Any]],
             (1040, float(pipe.diameter_m)), (1000, "diameter_m"),
             (1040, float(pipe.confidence)), (1000, "confidence"),
         ])
-        top = points[-1]
-        label = f"P{index} Ø{pipe.diameter_m * 1000:.0f} mm cover {pipe.depth_of_cover_m:.2f} m"
-        msp.add_text(label, height=0.04, dxfattribs={"layer": "PIPE_LABELS"}).set_placement(
-            (float(top[0]), float(top[1]), 0.0 if georef is None or not georef.has_projected else float(top[2])))
+        # the label runs along the pipe from its middle (pipes a few decimetres apart must not share a line);
+        # %%c is DXF's diameter sign, which every CAD font draws
+        label = f"P{index} %%c{pipe.diameter_m * 1000:.0f} mm, cover {pipe.depth_of_cover_m:.2f} m"
+        middle = len(points) // 2
+        a, b = points[max(middle - 1, 0)], points[min(middle, len(points) - 1)] if len(points) > 1 else points[0]
+        angle = math.degrees(math.atan2(float(b[1] - a[1]), float(b[0] - a[0]))) if len(points) > 1 else 0.0
+        angle = angle - 180.0 if angle > 90.0 else angle + 180.0 if angle <= -90.0 else angle  # never upside down
+        at = (points[0] + points[-1]) / 2 if len(points) == 2 else points[middle]
+        msp.add_text(label, height=LABEL_HEIGHT_M, rotation=angle, dxfattribs={"layer": "PIPE_LABELS"}).set_placement(
+            (float(at[0]), float(at[1]), float(at[2])), align=TextEntityAlignment.BOTTOM_CENTER)
     for bar in rebars:
         p = _place(georef, np.array([[bar["x_m"], bar["y_m"], -bar["depth_m"]]]))[0]
         msp.add_point(tuple(map(float, p)), dxfattribs={"layer": "REBARS"})
