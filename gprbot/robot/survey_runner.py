@@ -210,16 +210,21 @@ class SurveyRunner:
             run.state = "aborted" if run.abort_reason else "done"
             return
         result = await self._beating(self._reconstruct(run.bscans), beat)
+        await self._write_outputs(run, result, beat)
+        run.pipes = len(result.reconstruction.pipes)
+        run.state = "aborted" if run.abort_reason else "done"
+        self.emit(f"survey done {run.name} pipes {run.pipes}")
+
+    async def _write_outputs(self, run: SurveyRun, result: SurveyResult, beat: Callable[[], None]) -> None:
+        """The run directory's results, written in a thread; a picture per line and the exports take seconds,
+        so the survey task's watchdog is fed meanwhile (a restart would lose the results)."""
         meta = {"run": run.name, "frame": "site: x forward along the survey lines, y left, z up; metres",
                 "source": "gprbot run", "config": to_dict(self.cfg), **self.run_meta()}
         x0, y0 = run.survey.start_xy_m
         extent = (x0 - 0.2, x0 + run.survey.length_m + 0.2, y0 - 0.2,
                   y0 + (run.survey.lines - 1) * run.survey.spacing_m + 0.2)
-        await asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent, self.truth_axes,
-                                raw_lines=run.bscans)
-        run.pipes = len(result.reconstruction.pipes)
-        run.state = "aborted" if run.abort_reason else "done"
-        self.emit(f"survey done {run.name} pipes {run.pipes}")
+        await self._beating(asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent,
+                                              self.truth_axes, raw_lines=run.bscans), beat)
 
     async def _drive(self, run: SurveyRun, segment: Segment, beat: Callable[[], None]) -> None:
         """Drive one segment for its planned duration (pauses excluded)."""
