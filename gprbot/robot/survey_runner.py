@@ -216,15 +216,21 @@ class SurveyRunner:
         self.emit(f"survey done {run.name} pipes {run.pipes}")
 
     async def _write_outputs(self, run: SurveyRun, result: SurveyResult, beat: Callable[[], None]) -> None:
-        """The run directory's results, written in a thread; a picture per line and the exports take seconds,
-        so the survey task's watchdog is fed meanwhile (a restart would lose the results)."""
+        """The run directory's results, written by the inference worker (or a thread without one); a picture per
+        line and the exports take seconds, so the survey task's watchdog is fed meanwhile (a restart would lose
+        the results)."""
         meta = {"run": run.name, "frame": "site: x forward along the survey lines, y left, z up; metres",
                 "source": "gprbot run", "config": to_dict(self.cfg), **self.run_meta()}
         x0, y0 = run.survey.start_xy_m
         extent = (x0 - 0.2, x0 + run.survey.length_m + 0.2, y0 - 0.2,
                   y0 + (run.survey.lines - 1) * run.survey.spacing_m + 0.2)
-        await self._beating(asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent,
-                                              self.truth_axes, raw_lines=run.bscans), beat)
+        if self.worker is not None:  # the worker process: matplotlib holds the GIL for seconds per picture
+            writing: Awaitable[Any] = self.worker.write_outputs(run.run_dir, result, meta, extent, self.truth_axes,
+                                                                run.bscans)
+        else:
+            writing = asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent, self.truth_axes,
+                                        raw_lines=run.bscans)
+        await self._beating(writing, beat)
 
     async def _drive(self, run: SurveyRun, segment: Segment, beat: Callable[[], None]) -> None:
         """Drive one segment for its planned duration (pauses excluded)."""
