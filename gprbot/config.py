@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import yaml
 
-from gprbot.errors import ConfigError
+from gprbot.errors import ConfigError, ModelError
 
 Vec3 = tuple[float, float, float]
 
@@ -311,8 +311,6 @@ PACKAGED_MODELS = Path(__file__).resolve().parent / "models"  # where a wheel pu
 def model_path(configured: str, models_dir: str | None = None) -> Path:
     """A configured model file: absolute as given; else by name in models_dir when set; else in the checkout's
     models/ or, in an installed wheel, the packaged copy (gprbot/models). ModelError says where it looked."""
-    from gprbot.errors import ModelError
-
     path = Path(configured).expanduser()
     if path.is_absolute():
         return path

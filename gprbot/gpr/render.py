@@ -19,12 +19,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from gprbot.gpr.bscan import BScan, CrossSection
 from gprbot.gpr.migration import envelope
-from gprbot.plotting import new_figure, save_png
+from gprbot.plotting import new_figure, placed_axes, save_png
 
 GREEN, RED, YELLOW, MAGENTA = "#00c800", "#ff0000", "#ffdc00", "#ff00ff"
 _STEP_NAMES = {"dewow": "dewow", "background": "background removed"}
 _FIG_SIZE_IN = (10.0, 5.0)
-_SECTION_WIDTH_IN = 8.2  # the image's width inside a 10-inch figure, beside the depth labels and colour bar
+_SECTION_WIDTH_IN = 7.85  # the image's width in a 10-inch figure (0.8 in of depth labels, 1.35 in of colour bar)
 
 
 @dataclass(frozen=True)
@@ -116,8 +116,10 @@ def write_bscan_png(
     t_top, t_bottom = -t0, (n_samples - 1) * bscan.dt_ns - t0
     clip = float(np.percentile(np.abs(data), 99.5)) or 1.0
 
-    fig = new_figure(_FIG_SIZE_IN)
-    ax = fig.add_subplot(1, 1, 1)
+    fig = new_figure(_FIG_SIZE_IN, fixed_layout=True)
+    # right margin: the depth axis's ticks and label, then the colour bar and its label
+    ax, bar_ax = placed_axes(fig, 0.8, 2.0 if velocity_m_per_ns else 1.35, 0.85, 0.4,
+                             bar_gap_in=0.95 if velocity_m_per_ns else 0.2)
     image = ax.imshow(data, cmap="gray", vmin=-clip, vmax=clip, aspect="auto", interpolation="nearest",
                       extent=(float(grid[0]), float(grid[-1]), t_bottom, t_top))
     ax.set_xlabel(axis.label)
@@ -133,12 +135,12 @@ def write_bscan_png(
 
         depth_axis = ax.secondary_yaxis("right", functions=(to_depth, to_time))
         depth_axis.set_ylabel(f"depth (m) at v = {v:.4f} m/ns")
-    colour_bar = fig.colorbar(image, ax=ax, pad=0.02, fraction=0.04)
-    colour_bar.set_label("amplitude (after processing, clipped at 99.5 %)")
+    colour_bar = fig.colorbar(image, cax=bar_ax)
+    colour_bar.set_label("amplitude (processed, clipped at 99.5 %)")
     ax.set_title(f"{title}: {bscan.data.shape[0]} traces × {n_samples} samples, dt = {bscan.dt_ns:.3g} ns")
     velocity = f"; velocity {velocity_note}" if velocity_m_per_ns and velocity_note else ""
     footer = f"processing: {processing_note(bscan.processing)}; time zero at {t0:.2f} ns of the record{velocity}"
-    fig.supxlabel(textwrap.fill(footer, 150), fontsize=8, color="#444444")
+    fig.text(0.5, 0.02, textwrap.fill(footer, 150), fontsize=8, color="#444444", ha="center", va="bottom")
     save_png(fig, path)
 
 
@@ -171,10 +173,11 @@ def write_cross_section_png(
     exaggeration = vertical_exaggeration(abs(extent[1] - extent[0]), extent[2] - extent[3])
     # the figure as tall as the section drawn at its aspect (plus titles), so the colour bar fits the image
     drawn_ratio = exaggeration * (extent[2] - extent[3]) / max(abs(extent[1] - extent[0]), 1e-9)
-    height_in = min(max(_SECTION_WIDTH_IN * drawn_ratio + 1.7, 3.2), 9.0)
+    height_in = min(max(_SECTION_WIDTH_IN * drawn_ratio + 1.4, 3.2), 9.0)
 
-    fig = new_figure((_FIG_SIZE_IN[0], height_in))
-    ax = fig.add_subplot(1, 1, 1)
+    fig = new_figure((_FIG_SIZE_IN[0], height_in), fixed_layout=True)
+    ax, bar_ax = placed_axes(fig, 0.8, 1.35, 0.85, 0.55)
+    ax.set_anchor("W")
     shown = picture if axis.sign > 0 else picture[:, ::-1]
     image = ax.imshow(shown, cmap="gray", vmin=0.0, vmax=clip, extent=extent, interpolation="nearest")
     ax.set_aspect(exaggeration)
@@ -193,7 +196,7 @@ def write_cross_section_png(
         ax.plot([float(axis.of(r.x_m))], [r.depth_m], marker="o", markersize=5, fillstyle="none", color=MAGENTA)
     ax.set_xlabel(axis.label)
     ax.set_ylabel("depth below the surface (m)")
-    colour_bar = fig.colorbar(image, ax=ax, fraction=0.03, pad=0.02)
+    colour_bar = fig.colorbar(image, cax=bar_ax)
     colour_bar.set_label("migrated envelope")
     kind = velocity_note or ("estimated" if section.velocity_estimated else "given")
     scale = "true scale" if exaggeration == 1.0 else f"vertical exaggeration ×{exaggeration:g}"
@@ -201,6 +204,6 @@ def write_cross_section_png(
     ax.set_title(textwrap.fill(f"{title}: v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), "
                                f"{len(section.detections)} pipes{rebars}; {scale}", 110), fontsize=10)
     legend = "green: cross-section mask" + ("   red: truth" if truth_mask is not None else "")
-    fig.supxlabel(f"{legend}   yellow +: pipe centre (label: diameter, depth of cover to its top)   magenta o: rebar",
-                  fontsize=8, color="#444444")
+    fig.text(0.5, 0.02, f"{legend}   yellow +: pipe centre (label: diameter, depth of cover to its top)   "
+             "magenta o: rebar", fontsize=8, color="#444444", ha="center", va="bottom")
     save_png(fig, path)

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import griddata
+from scipy.interpolate import LinearNDInterpolator, griddata
+from scipy.spatial import Delaunay, QhullError
 
 from gprbot.gpr.migration import envelope
 from gprbot.infer.completion import pipe_colors
@@ -54,20 +55,27 @@ def depth_slices(result: SurveyResult, bands: Sequence[tuple[float, float]],
     for lr in result.lines:
         positions.append(lr.bscan.position_at(lr.section.x_m)[:, :2])
         envelopes.append((np.asarray(lr.section.z_m, np.float64), np.asarray(envelope(lr.section.image), np.float64)))
+    points = np.concatenate(positions) if positions else np.zeros((0, 2))
+    triangulation = None
+    if len(result.lines) >= 2 and len(points) >= 4:
+        try:  # one triangulation for every band: only the values change
+            triangulation = Delaunay(points)
+        except QhullError:  # lines on top of each other: no area to interpolate over
+            triangulation = None
     slices = []
     for top, bottom in bands:
         values = []
         for (z, env) in envelopes:
             rows = (z >= top) & (z < bottom)
             values.append(env[rows].max(axis=0) if rows.any() else np.full(env.shape[1], np.nan))
-        points = np.concatenate(positions) if positions else np.zeros((0, 2))
         amplitude = np.concatenate(values) if values else np.zeros(0)
         keep = np.isfinite(amplitude)
-        if keep.sum() >= 4 and len(result.lines) >= 2:
-            grid = griddata(points[keep], amplitude[keep], (mesh_x, mesh_y), method="linear")
-        else:  # one line: no area to interpolate over; show the line itself
-            grid = griddata(points[keep], amplitude[keep], (mesh_x, mesh_y), method="nearest") if keep.any() \
-                else np.full(mesh_x.shape, np.nan)
+        if triangulation is not None:
+            grid = LinearNDInterpolator(triangulation, amplitude)(mesh_x, mesh_y)
+        elif keep.any():  # one line: show the line itself
+            grid = griddata(points[keep], amplitude[keep], (mesh_x, mesh_y), method="nearest")
+        else:
+            grid = np.full(mesh_x.shape, np.nan)
         slices.append(DepthSlice(top, bottom, gx, gy, np.asarray(grid, np.float64)))
     return slices
 
@@ -78,18 +86,22 @@ def render_depth_slices(path: str | os.PathLike[str], result: SurveyResult, slic
     columns = 3 if len(slices) > 4 else max(len(slices), 1)
     rows = -(-len(slices) // columns)
     aspect = (np.ptp(slices[0].y_m) / max(np.ptp(slices[0].x_m), 1e-6)) if slices else 1.0
-    panel_width = 4.2
-    fig = new_figure((panel_width * columns + 1.2, rows * (0.8 * panel_width * float(aspect) + 0.55) + 0.5))
+    panel_in, left_in, right_in, bottom_in, top_in, gap_in = 4.0, 0.7, 1.3, 0.55, 0.55, 0.45
+    width_in = left_in + columns * panel_in + (columns - 1) * 0.25 + right_in
+    height_in = bottom_in + rows * panel_in * float(aspect) + (rows - 1) * gap_in + top_in
+    fig = new_figure((width_in, height_in), fixed_layout=True)  # one draw: this picture is made for every run
     finite = np.concatenate([s.amplitude[np.isfinite(s.amplitude)] for s in slices]) if slices else np.zeros(0)
     vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
     colours = pipe_colors(max(len(result.reconstruction.pipes), 1)) / 255.0
-    axes = fig.subplots(rows, columns, squeeze=False, sharex=True, sharey=True)
+    axes = fig.subplots(rows, columns, squeeze=False, sharex=True, sharey=True, gridspec_kw={
+        "left": left_in / width_in, "right": 1 - right_in / width_in, "bottom": bottom_in / height_in,
+        "top": 1 - top_in / height_in, "wspace": 0.25 / panel_in, "hspace": gap_in / (panel_in * float(aspect))})
     image = None
     for ax, sl in zip(axes.flat, slices, strict=False):
         image = ax.imshow(sl.amplitude, origin="lower", cmap="inferno", vmin=0.0, vmax=vmax or 1.0,
                           extent=(sl.x_m[0], sl.x_m[-1], sl.y_m[0], sl.y_m[-1]), interpolation="nearest")
         for lr in result.lines:
-            xy = lr.bscan.positions[:, :2]
+            xy = lr.bscan.positions[:: max(len(lr.bscan.positions) // 50, 1), :2]  # 50 points draw a line
             ax.plot(xy[:, 0], xy[:, 1], color="#8cb4e6", linewidth=0.5)
         for index, pipe in enumerate(result.reconstruction.pipes):
             centre_top = pipe.depth_of_cover_m
@@ -104,7 +116,9 @@ def render_depth_slices(path: str | os.PathLike[str], result: SurveyResult, slic
     for ax in axes[:, 0]:
         ax.set_ylabel("site y (m)")
     if image is not None:
-        bar = fig.colorbar(image, ax=axes, fraction=0.03, pad=0.02)
+        bar_ax = fig.add_axes((1 - (right_in - 0.2) / width_in, bottom_in / height_in, 0.18 / width_in,
+                               1 - (bottom_in + top_in) / height_in))
+        bar = fig.colorbar(image, cax=bar_ax)
         bar.set_label("max migrated envelope in the band (one scale for all bands)")
     fig.suptitle(f"Depth slices of {len(result.lines)} lines (migrated at v = {result.velocity_m_per_ns:.4f} m/ns, "
                  f"{velocity_note}); dashed: pipes found in the band, blue: survey lines", fontsize=10)
