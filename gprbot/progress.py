@@ -14,6 +14,7 @@ from tqdm import tqdm
 
 T = TypeVar("T")
 _quiet = False
+tqdm.monitor_interval = 0  # no monitor thread: a bar here is updated by its job, and the daemon needs no extra thread
 
 
 def set_quiet(quiet: bool) -> None:
