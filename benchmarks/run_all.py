@@ -15,6 +15,7 @@ BENCHMARKS = (
     "bench_realsense",
     "bench_fusion",
     "bench_replay",
+    "bench_outputs",
 )
 
 

@@ -1,4 +1,9 @@
-"""The `gprbot` command: demo, run, shell, pull, replay, interpret, info, convert."""
+"""The `gprbot` command: demo, run, shell, pull, replay, interpret, info, convert, export-mcap, config check.
+
+Exit codes: 0 success, 1 a runtime error (bad file, unreachable robot, failed shell command), 2 a usage
+error (argparse), 3 `demo --check` out of bounds, 130 interrupted. `--json` prints one JSON document on
+stdout and nothing else there; progress bars go to stderr, and only to a terminal.
+"""
 
 from __future__ import annotations
 
@@ -8,13 +13,14 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from gprbot import __version__
-from gprbot.errors import GprbotError
+from gprbot import __version__, progress
+from gprbot.errors import GprbotError, UsageError
 
 if TYPE_CHECKING:
     from gprbot.config import Config
+    from gprbot.demo import DemoResult
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -28,19 +34,40 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     names = builtin_scene_names() if args.scene == "all" else [args.scene or cfg.sim.scene]
     base = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("demo-%Y%m%d-%H%M%S")
     all_ok = True
+    summaries = []
     for name in names:
         scene = load_scene(name)
         out_dir = base / scene.name if len(names) > 1 else base
         demo = run_demo(cfg, scene, out_dir)
         r = demo.result
-        v_note = "estimated from the hyperbolas" if r.velocity_estimated else "from the configured eps_r"
-        print(f"scene {scene.name}: {len(r.lines)} lines, {len(r.reconstruction.pipes)} pipes found, "
-              f"velocity {r.velocity_m_per_ns:.4f} m/ns ({v_note}), {demo.seconds:.1f} s")
-        print(demo.table)
-        print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if demo.ok else 'NO'}")
-        print(f"results: {out_dir}\n")
+        summaries.append(_demo_summary(scene.name, demo))
+        if not args.json:
+            v_note = "estimated from the hyperbolas" if r.velocity_estimated else "from the configured eps_r"
+            print(f"scene {scene.name}: {len(r.lines)} lines, {len(r.reconstruction.pipes)} pipes found, "
+                  f"velocity {r.velocity_m_per_ns:.4f} m/ns ({v_note}), {demo.seconds:.1f} s")
+            print(demo.table)
+            print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if demo.ok else 'NO'}")
+            print(f"results: {out_dir}\n")
         all_ok &= demo.ok
+    if args.json:
+        print(json.dumps({"scenes": summaries, "all_within_bounds": all_ok}, indent=2))
     return 0 if all_ok else 3  # a failed truth check is a failed demo (--check kept for old scripts)
+
+
+def _demo_summary(scene: str, demo: DemoResult) -> dict[str, Any]:
+    """One scene's demo as plain data (for --json)."""
+    import dataclasses
+
+    r = demo.result
+    return {
+        "scene": scene, "out_dir": str(demo.out_dir),
+        "lines": len(r.lines), "pipes_found": len(r.reconstruction.pipes),
+        "velocity_m_per_ns": round(r.velocity_m_per_ns, 5), "velocity_estimated": r.velocity_estimated,
+        "seconds": round(demo.seconds, 2), "within_bounds": demo.ok,
+        "matches": [{k: v for k, v in dataclasses.asdict(m).items() if isinstance(v, int | float | str | None)}
+                    for m in demo.matches],
+        "extra_pipes": list(demo.extras),
+    }
 
 
 def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
@@ -57,15 +84,21 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, scene=args.scene))
     scene = load_scene(cfg.sim.scene)  # a bad scene is one clear error before any daemon starts
     dest = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("pulled-%Y%m%d-%H%M%S")
-    print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)")
-    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", flush=True)))
-    print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}")
+    talk = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document alone
+    print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)", file=talk)
+    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", file=talk, flush=True)))
+    print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}", file=talk)
     # The operator's copy of pipes.json, judged against the simulated scene's truth.
     found = read_pipes_json(dest / "pipes.json")
     matches, extras = compare_to_truth(found, scene, survey_region(cfg))
-    print(format_truth_table(matches, extras, found))
     ok = within_bounds(matches)
-    print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if ok else 'NO'}")
+    if args.json:
+        print(json.dumps({"run": result.run, "out_dir": str(dest), "pulled": len(result.pulled), "scene": scene.name,
+                          "pipes_found": len(found), "within_bounds": ok, "extra_pipes": list(extras),
+                          "matches": [dataclasses.asdict(m) for m in matches]}, indent=2))
+    else:
+        print(format_truth_table(matches, extras, found))
+        print(f"within bounds (3 cm position and depth, 30 % diameter): {'yes' if ok else 'NO'}")
     if result.exit_status != 0:
         return result.exit_status
     return 0 if ok else 3
@@ -96,11 +129,14 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
         from gprbot.config import load_config
 
         config = load_config(args.config)
+    from gprbot.interpret_file import default_out_dir, interpret_file_json
+
+    out = out or default_out_dir(Path(args.file), config)
     report = interpret_file(
         Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing, args.allow_partial,
         height_m=args.height, offset_m=args.offset, config=config,
     )
-    print(report)
+    print(json.dumps(interpret_file_json(out), indent=2) if args.json else report)
     return 0
 
 
@@ -145,7 +181,42 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else run_dir / "replay"
     cfg = load_config(args.config) if args.config else None
     result = replay_run(run_dir, out, cfg)
-    print(f"replayed {run_dir}: {len(result.lines)} lines, {len(result.reconstruction.pipes)} pipes; results: {out}")
+    if args.json:
+        summary = json.loads((out / "summary.json").read_text())
+        summary.pop("config", None)  # the resolved config is in summary.json; stdout keeps to the results
+        print(json.dumps({"out_dir": str(out), **summary}, indent=2))
+    else:
+        print(f"replayed {run_dir}: {len(result.lines)} lines, {len(result.reconstruction.pipes)} pipes; "
+              f"results: {out}")
+    return 0
+
+
+def _cmd_export_mcap(args: argparse.Namespace) -> int:
+    from gprbot.exports.mcap_log import export_mcap
+
+    with progress.bar(None, f"{Path(args.run).name}: exporting to MCAP", unit="record") as bar:
+        done = export_mcap(Path(args.run), Path(args.out) if args.out else None, on_record=bar.update)
+    if args.json:
+        print(json.dumps({"mcap": str(done.path), "messages": done.messages, "run_log": done.log_status}, indent=2))
+        return 0
+    print(f"{done.path}: {sum(done.messages.values())} messages on {len(done.messages)} topics")
+    for topic, count in sorted(done.messages.items()):
+        print(f"  {topic:24s} {count}")
+    if done.log_status.get("torn"):
+        print(f"note: the run log is torn ({done.log_status['note']}); exported what precedes the tear")
+    return 0
+
+
+def _cmd_config_check(args: argparse.Namespace) -> int:
+    from gprbot.config import load_config, to_dict
+
+    cfg = load_config(args.file)  # the daemon's own loader: the same keys, types and ranges
+    if args.json:
+        print(json.dumps(to_dict(cfg), indent=2))
+        return 0
+    devices = "simulated robot" if cfg.motors.port == "sim" else f"motors on {cfg.motors.port}"
+    print(f"{args.file}: ok ({devices}; shell {cfg.shell.host}:{cfg.shell.port}; runs in {cfg.runs_dir}; "
+          f"interpretation {cfg.interpretation.method}, completion {cfg.reconstruction.completion})")
     return 0
 
 
@@ -166,6 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gprbot", description="GPR inspection robot: survey, interpret, model.")
     parser.add_argument("--version", action="version", version=f"gprbot {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they only go to a terminal)")
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser(
@@ -180,6 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="process the simulated survey directly (fast, no daemon); implied by --scene all")
     demo.add_argument("--check", action="store_true",
                       help="(the default now) exit 3 unless every pipe is within the bounds")
+    demo.add_argument("--json", action="store_true", help="print the summary as JSON (the rest goes to stderr)")
     demo.set_defaults(func=_cmd_demo)
 
     info = sub.add_parser("info", help="print the header of a GPR file (DZT, DT1+HD, RD3/RD7+RAD, SEG-Y, SU, gprMax)")
@@ -199,6 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("--offset", type=float, help="Tx-Rx separation in m (default: from the file or antenna)")
     interp.add_argument("--config", help="config YAML (interpretation.method: classical or migrationnet)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
+    interp.add_argument("--json", action="store_true", help="print detections.json instead of the report")
     interp.set_defaults(func=_cmd_interpret)
 
     convert = sub.add_parser("convert", help="convert a GPR file (any format `info` reads) to .DZT, .DT1, .sgy or .su")
@@ -221,7 +295,21 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("run", help="the run directory (holding log-000.msgpack ...)")
     replay.add_argument("--out", help="where to write the results (default: RUN/replay)")
     replay.add_argument("--config", help="override the config recorded in the run's header")
+    replay.add_argument("--json", action="store_true", help="print the summary as JSON")
     replay.set_defaults(func=_cmd_replay)
+
+    export = sub.add_parser("export-mcap", help="write a run's log as MCAP (Foxglove and other robotics tools)")
+    export.add_argument("run", help="the run directory (holding log-000.msgpack ...)")
+    export.add_argument("--out", help="the MCAP file to write (default: RUN/run.mcap)")
+    export.add_argument("--json", action="store_true", help="print what was written as JSON")
+    export.set_defaults(func=_cmd_export_mcap)
+
+    config = sub.add_parser("config", help="configuration tools")
+    config_sub = config.add_subparsers(dest="config_command", required=True)
+    check = config_sub.add_parser("check", help="load a config file as the daemon would; exit 1 naming the bad key")
+    check.add_argument("file")
+    check.add_argument("--json", action="store_true", help="print the resolved config (defaults filled in) as JSON")
+    check.set_defaults(func=_cmd_config_check)
 
     from gprbot.shell.interactive import add_pull_arguments, add_shell_arguments
 
@@ -237,14 +325,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: one clear error line and a non-zero exit for bad input, never a traceback."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(argv)  # a usage error exits 2 here (argparse)
+    progress.set_quiet(args.quiet)
     try:
         return int(args.func(args))
     except GprbotError as exc:
         if args.debug:
             raise
         print(f"gprbot: error: {exc}", file=sys.stderr)
-        return 2
+        return 2 if isinstance(exc, UsageError) else 1
     except KeyboardInterrupt:
         print("gprbot: interrupted", file=sys.stderr)
         return 130

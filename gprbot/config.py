@@ -19,7 +19,7 @@ from typing import Any, Literal
 import yaml
 
 from gprbot.config_ranges import check_ranges
-from gprbot.errors import ConfigError
+from gprbot.errors import ConfigError, ModelError
 
 Vec3 = tuple[float, float, float]
 
@@ -245,6 +245,48 @@ class SimConfig:
 
 
 @dataclass(frozen=True)
+class GeoreferenceConfig:
+    """Where the site frame lies on the earth (for GeoJSON, and DXF/CSV in a projected CRS)."""
+
+    heading_deg: float = 0.0  # azimuth of site +x, clockwise from (grid) north
+    origin_lat_deg: float | None = None  # WGS84 latitude of the site origin
+    origin_lon_deg: float | None = None
+    origin_height_m: float = 0.0  # ellipsoidal height (WGS84) or the CRS's height of the origin
+    crs: str | None = None  # a projected CRS for DXF/CSV, e.g. "EPSG:25832" (ETRS89 / UTM 32N)
+    origin_easting_m: float | None = None
+    origin_northing_m: float | None = None
+
+    def __post_init__(self) -> None:
+        if (self.origin_lat_deg is None) != (self.origin_lon_deg is None):
+            raise ConfigError("georeference: give both origin_lat_deg and origin_lon_deg, or neither")
+        if self.origin_lat_deg is not None and not -90.0 <= self.origin_lat_deg <= 90.0:
+            raise ConfigError(f"georeference.origin_lat_deg: expected −90…90, got {self.origin_lat_deg}")
+        if self.origin_lon_deg is not None and not -180.0 <= self.origin_lon_deg <= 180.0:
+            raise ConfigError(f"georeference.origin_lon_deg: expected −180…180, got {self.origin_lon_deg}")
+        if self.crs is not None and (self.origin_easting_m is None or self.origin_northing_m is None):
+            raise ConfigError("georeference.crs: also give origin_easting_m and origin_northing_m of the site origin")
+        if self.crs is None and self.origin_lat_deg is None:
+            raise ConfigError("georeference: give origin_lat_deg/origin_lon_deg, or crs with origin_easting_m/"
+                              "origin_northing_m (or leave the section out)")
+        if not math.isfinite(self.heading_deg):
+            raise ConfigError(f"georeference.heading_deg: expected a finite angle, got {self.heading_deg}")
+
+
+@dataclass(frozen=True)
+class RetentionConfig:
+    """How many old runs the robot keeps in runs_dir; the oldest are deleted when a new run starts."""
+
+    max_runs: int | None = None  # None: keep every run
+    max_total_gb: float | None = None  # None: no size limit
+
+    def __post_init__(self) -> None:
+        if self.max_runs is not None and self.max_runs < 1:
+            raise ConfigError(f"retention.max_runs: expected ≥ 1 (or null to keep all), got {self.max_runs}")
+        if self.max_total_gb is not None and not self.max_total_gb > 0:
+            raise ConfigError(f"retention.max_total_gb: expected > 0 (or null), got {self.max_total_gb}")
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole gprbot configuration."""
 
@@ -262,15 +304,37 @@ class Config:
     gpr_device: GprDeviceConfig = field(default_factory=GprDeviceConfig)
     realsense: RealsenseConfig = field(default_factory=RealsenseConfig)
     runs_dir: str = "runs"
+    retention: RetentionConfig = field(default_factory=RetentionConfig)
+    georeference: GeoreferenceConfig | None = None
+    models_dir: str | None = None  # where model files are looked up by name (default: checkout or package)
 
 
 CHECKOUT_ROOT = Path(__file__).resolve().parents[1]
 
 
-def model_path(configured: str) -> Path:
-    """A configured model file: absolute as given, relative to the gprbot checkout (not the working directory)."""
+PACKAGED_MODELS = Path(__file__).resolve().parent / "models"  # where a wheel puts models/ (setup.py)
+
+
+def model_path(configured: str, models_dir: str | None = None) -> Path:
+    """A configured model file: absolute as given; else by name in models_dir when set; else in the checkout's
+    models/ or, in an installed wheel, the packaged copy (gprbot/models). ModelError says where it looked."""
     path = Path(configured).expanduser()
-    return path if path.is_absolute() else CHECKOUT_ROOT / path
+    if path.is_absolute():
+        return path
+    if models_dir is not None:
+        found = Path(models_dir).expanduser() / path.name
+        if not found.is_file():
+            raise ModelError(f"model {path.name} is not in models_dir {models_dir} (config key models_dir); "
+                             "copy the .onnx file and its .json card there, or unset models_dir")
+        return found
+    candidates = [CHECKOUT_ROOT / path]
+    if path.parts and path.parts[0] == "models":
+        candidates.append(PACKAGED_MODELS.joinpath(*path.parts[1:]))
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    raise ModelError(f"model {configured} not found (looked in {', '.join(str(c) for c in candidates)}); "
+                     "set models_dir in the config to the directory holding the .onnx files and their cards")
 
 
 def _type_name(tp: Any) -> str:
@@ -402,15 +466,20 @@ def parse_config(text: str, source: str = "<string>") -> Config:
 
 
 def load_config(path: str | Path | None = None) -> Config:
-    """Load a config file; with no path, the embedded simulation default (configs/sim.yaml)."""
+    """Load a config file, or a built-in one by name (sim, sim_learned, robot); with no path, configs/sim.yaml."""
     if path is None:
         text = resources.files("gprbot").joinpath("configs/sim.yaml").read_text()
         return parse_config(text, "configs/sim.yaml")
     p = Path(path)
+    builtin = resources.files("gprbot").joinpath(f"configs/{p.name}.yaml")
+    if not p.exists() and p.name == str(path) and builtin.is_file():  # a built-in name: works from a wheel too
+        return parse_config(builtin.read_text(), f"configs/{p.name}.yaml")
     try:
         text = p.read_text()
     except OSError as exc:
-        raise ConfigError(f"cannot read config file {p}: {exc.strerror}") from exc
+        names = ", ".join(sorted(f.name.removesuffix(".yaml") for f in resources.files("gprbot").joinpath("configs")
+                                 .iterdir() if f.name.endswith(".yaml")))
+        raise ConfigError(f"cannot read config file {p}: {exc.strerror} (built-in configs: {names})") from exc
     return parse_config(text, str(p))
 
 

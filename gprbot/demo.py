@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gprbot import __version__
+from gprbot import __version__, progress
 from gprbot.config import Config, to_dict
 from gprbot.evaluation import PipeMatch, compare_to_truth, format_truth_table, within_bounds
-from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
+from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
 from gprbot.infer.run_files import write_survey_outputs
 from gprbot.sim.scene import Scene
 from gprbot.sim.survey_sim import simulate_survey
@@ -41,29 +41,39 @@ def survey_region(cfg: Config) -> tuple[float, float, float, float]:
 def run_demo(cfg: Config, scene: Scene, out_dir: Path) -> DemoResult:
     """Simulate a survey over `scene`, reconstruct it, write the run directory, compare with truth."""
     start = time.perf_counter()
-    sim = simulate_survey(cfg, scene)
-    by_line = split_by_line(sim.traces, line_windows(sim.plan))
-    lever = cfg.mount.antenna_lever_arm_m
-    bscans = {line: assemble_bscan(tr, sim.trajectory.estimated_poses, lever) for line, tr in by_line.items()}
-    result = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
-    region = survey_region(cfg)
-    matches, extras = compare_to_truth(result.reconstruction.pipes, scene, region)
-    table = format_truth_table(matches, extras, result.reconstruction.pipes)
+    # steps: the simulation (sensors, VO and the filter: most of the time), the survey's, the outputs
+    with progress.bar(survey_steps(cfg.survey.lines) + 2, f"{scene.name}: simulating sensors, VO") as steps:
 
-    # Truth masks are drawn at the TRUE antenna positions of each line's columns.
-    truth_masks = {}
-    for lr in result.lines:
-        times = np.interp(lr.section.x_m, lr.bscan.along_track_m(), lr.bscan.times)
-        truth_masks[lr.line] = cross_section_mask(scene, sim.trajectory.true_antenna_xy(times), lr.section.z_m)
+        def step(what: str) -> None:
+            steps.set_description(f"{scene.name}: {what}")
+            steps.update()
 
-    meta = {
-        "run": out_dir.name,
-        "gprbot_version": __version__,
-        "scene": scene.name,
-        "frame": "site: x forward along the survey lines, y left, z up; metres",
-        "config": to_dict(cfg),
-    }
-    region_pad = (region[0] - 0.2, region[1] + 0.2, region[2] - 0.2, region[3] + 0.2)
-    write_survey_outputs(out_dir, result, meta, region_pad, [p.points for p in scene.pipes], truth_masks, bscans)
+        sim = simulate_survey(cfg, scene)
+        step("simulated")
+        by_line = split_by_line(sim.traces, line_windows(sim.plan))
+        lever = cfg.mount.antenna_lever_arm_m
+        bscans = {line: assemble_bscan(tr, sim.trajectory.estimated_poses, lever) for line, tr in by_line.items()}
+        result = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed), step)
+        steps.set_description(f"{scene.name}: writing the run directory")
+        region = survey_region(cfg)
+        matches, extras = compare_to_truth(result.reconstruction.pipes, scene, region)
+        table = format_truth_table(matches, extras, result.reconstruction.pipes)
+
+        # Truth masks are drawn at the TRUE antenna positions of each line's columns.
+        truth_masks = {}
+        for lr in result.lines:
+            times = np.interp(lr.section.x_m, lr.bscan.along_track_m(), lr.bscan.times)
+            truth_masks[lr.line] = cross_section_mask(scene, sim.trajectory.true_antenna_xy(times), lr.section.z_m)
+
+        meta = {
+            "run": out_dir.name,
+            "gprbot_version": __version__,
+            "scene": scene.name,
+            "frame": "site: x forward along the survey lines, y left, z up; metres",
+            "config": to_dict(cfg),
+        }
+        region_pad = (region[0] - 0.2, region[1] + 0.2, region[2] - 0.2, region[3] + 0.2)
+        write_survey_outputs(out_dir, result, meta, region_pad, [p.points for p in scene.pipes], truth_masks, bscans)
+        step("written")
     ok = within_bounds(matches)
     return DemoResult(out_dir, result, matches, extras, table, ok, time.perf_counter() - start)

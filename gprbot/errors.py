@@ -29,3 +29,7 @@ class ModelError(GprbotError):
 
 class InterpretationError(GprbotError):
     """A B-scan cannot be interpreted (empty, too short, no usable signal)."""
+
+
+class UsageError(GprbotError):
+    """A command-line option has a value no run could use (the CLI exits 2, as argparse does)."""

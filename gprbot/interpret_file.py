@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from gprbot.config import Config, GprConfig, InterpretationConfig, load_config
-from gprbot.errors import DataFormatError
+from gprbot.errors import DataFormatError, UsageError
 from gprbot.gpr.antennas import GSSI_ANTENNAS, antenna_frequency_mhz, check_frequency_mhz
 from gprbot.gpr.bscan import BScan, CrossSection
 from gprbot.gpr.chain.classify import ClassifiedDetection
@@ -82,9 +82,9 @@ def file_bscan(
 def _antenna_geometry(gpr: GprConfig, height_m: float | None, offset_m: float | None) -> tuple[GprConfig, str]:
     """The antenna geometry to interpret with (the options override the file/table values) and where it came from."""
     if height_m is not None and not 0.0 <= height_m <= 1.0:
-        raise DataFormatError(f"--height {height_m:g} m: give the antenna's height above the surface, 0 to 1 m")
+        raise UsageError(f"--height {height_m:g} m: give the antenna's height above the surface, 0 to 1 m")
     if offset_m is not None and not 0.0 <= offset_m <= 5.0:
-        raise DataFormatError(f"--offset {offset_m:g} m: give the Tx-Rx separation, 0 to 5 m")
+        raise UsageError(f"--offset {offset_m:g} m: give the Tx-Rx separation, 0 to 5 m")
     origin = "options" if height_m is not None or offset_m is not None else "file or antenna table"
     return replace(gpr, antenna_height_m=gpr.antenna_height_m if height_m is None else height_m,
                    tx_rx_offset_m=gpr.tx_rx_offset_m if offset_m is None else offset_m), origin
@@ -107,6 +107,17 @@ def _migrationnet_section(bscan: BScan, gpr: GprConfig, cfg: InterpretationConfi
 
     net = migrationnet_interpreter(cfg.migrationnet_model, 2)
     return net.interpret(preprocess(bscan, gpr), gpr, cfg, v)
+
+
+def shown_bscan(bscan: BScan, gpr: GprConfig, t0_ns: float) -> BScan:
+    """The B-scan as bscan.png shows it: preprocessed at the chain's time zero (not a second estimate of it)."""
+    return preprocess(replace(bscan, t0_ns=t0_ns), gpr)
+
+
+def default_out_dir(path: Path, config: Config | None = None) -> Path:
+    """Where `gprbot interpret FILE` writes without --out: runs_dir/interpret-<stem>-<time>."""
+    cfg = config or load_config()
+    return Path(cfg.runs_dir) / time.strftime(f"interpret-{path.stem}-%Y%m%d-%H%M%S")
 
 
 def interpret_file(
@@ -136,7 +147,7 @@ def interpret_file(
     gpr, geometry_origin = _antenna_geometry(gpr_config_for(rg, cfg.gpr, frequency_mhz), height_m, offset_m)
     eps_r = float(rg.header.get("eps_r") or 0.0) if rg.source_format == "dzt" else 0.0
     fallback = velocity_from_eps(eps_r) if eps_r > 1.0 else None
-    out = out_dir or Path(cfg.runs_dir) / time.strftime(f"interpret-{path.stem}-%Y%m%d-%H%M%S")
+    out = out_dir or default_out_dir(path, cfg)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback)
@@ -181,10 +192,11 @@ def interpret_file(
             "seconds": round(seconds, 3),
         },
     )
-    write_bscan_png(out / "bscan.png", preprocess(bscan, replace(gpr, pre_trigger_ns=prep.t0_ns)))
-    write_cross_section_png(out / "section.png", section)
     v_text = {"given": "given", "estimated": f"estimated ±{result.velocity_sigma:.4f}, {result.velocity_method}",
               "fallback": "not estimated"}[result.velocity_source]
+    write_bscan_png(out / "bscan.png", shown_bscan(bscan, gpr, prep.t0_ns), result.velocity,
+                    v_text, title=path.name, site_frame=False)
+    write_cross_section_png(out / "section.png", section, velocity_note=v_text, title=path.name)
     lines = [
         f"{path.name} ({rg.source_format}): {rg.traces} traces × {rg.n_samples} samples, "
         f"{gpr.centre_frequency_mhz:.0f} MHz antenna (reflections peak near {prep.frequency_mhz:.0f} MHz)",
@@ -200,6 +212,14 @@ def interpret_file(
     lines += [f"note: {n}" for n in notes]
     lines.append(f"written: {out}/detections.json, bscan.png, section.png")
     return "\n".join(lines)
+
+
+def interpret_file_json(out_dir: Path) -> dict[str, object]:
+    """The detections.json that interpret_file wrote into out_dir (for `gprbot interpret --json`)."""
+    import json
+
+    document: dict[str, object] = json.loads((out_dir / "detections.json").read_text())
+    return document
 
 
 interpret_dzt = interpret_file  # the name before other formats were read

@@ -17,13 +17,13 @@ import numpy as np
 
 import gprbot.drivers.motors.encoders as encoders
 import gprbot.drivers.realsense.driver as realsense  # registers RawRgbdFrame for the reader
-from gprbot import __version__
+from gprbot import __version__, progress
 from gprbot.config import Config, build_dataclass, to_dict
 from gprbot.errors import ConfigError, GprbotError
 from gprbot.fusion.frames import CameraMount, RgbdFrame, VoMeasurement
 from gprbot.fusion.fuser import PoseFuser
 from gprbot.gpr.bscan import BScan
-from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
+from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
 from gprbot.infer.run_files import write_survey_outputs
 from gprbot.messages import ImuSample, Pose, Trace, WheelSpeeds
 from gprbot.runlog import RunLogWriter, SurveyEvent, make_run_header
@@ -150,23 +150,34 @@ def survey_bscans(run: RecordedRun) -> dict[int, BScan]:
 
 def replay_run(run_dir: Path, out_dir: Path, cfg: Config | None = None) -> SurveyResult:
     """Reprocess a recorded run into out_dir (PLYs, pipes.json, PNGs, summary.json with the log's state)."""
-    run = load_run(run_dir, cfg)
-    bscans = survey_bscans(run)
-    if not bscans:
-        raise GprbotError(f"{run_dir}: no complete survey line in the run log ({run.log_status['note'] or 'no lines'})")
-    result = reconstruct_survey(bscans, run.config, np.random.default_rng(run.config.sim.seed))
-    positions = np.concatenate([b.positions for b in bscans.values()])
-    lo, hi = positions.min(axis=0) - 0.2, positions.max(axis=0) + 0.2
-    meta = {
-        "run": Path(run_dir).name,
-        "gprbot_version": __version__,
-        "replayed_from": {k: run.header.get(k) for k in ("gprbot_version", "git_commit", "created", "devices")},
-        "pose_source": run.pose_source,
-        "run_log": run.log_status,
-        "incomplete_lines": {str(k): v for k, v in sorted(run.incomplete_lines.items())},
-        "config": to_dict(run.config),
-    }
-    write_survey_outputs(Path(out_dir), result, meta, (lo[0], hi[0], lo[1], hi[1]), raw_lines=bscans)
+    with progress.bar(None, f"{Path(run_dir).name}: reading the run log") as steps:
+
+        def step(what: str) -> None:
+            steps.set_description(f"{Path(run_dir).name}: {what}")
+            steps.update()
+
+        run = load_run(run_dir, cfg)
+        bscans = survey_bscans(run)
+        if not bscans:
+            raise GprbotError(f"{run_dir}: no complete survey line in the run log "
+                              f"({run.log_status['note'] or 'no lines'})")
+        steps.total = survey_steps(len(bscans)) + 2
+        step("read the log")
+        result = reconstruct_survey(bscans, run.config, np.random.default_rng(run.config.sim.seed), step)
+        steps.set_description(f"{Path(run_dir).name}: writing the results")
+        positions = np.concatenate([b.positions for b in bscans.values()])
+        lo, hi = positions.min(axis=0) - 0.2, positions.max(axis=0) + 0.2
+        meta = {
+            "run": Path(run_dir).name,
+            "gprbot_version": __version__,
+            "replayed_from": {k: run.header.get(k) for k in ("gprbot_version", "git_commit", "created", "devices")},
+            "pose_source": run.pose_source,
+            "run_log": run.log_status,
+            "incomplete_lines": {str(k): v for k, v in sorted(run.incomplete_lines.items())},
+            "config": to_dict(run.config),
+        }
+        write_survey_outputs(Path(out_dir), result, meta, (lo[0], hi[0], lo[1], hi[1]), raw_lines=bscans)
+        step("written")
     return result
 
 

@@ -19,7 +19,7 @@ stamp="$VENV/.installed-$(sha256sum pyproject.toml | cut -c1-16)"
 if [ ! -f "$stamp" ]; then
     [ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
     "$VENV/bin/python" -m pip install -q --upgrade pip
-    "$VENV/bin/python" -m pip install -q -e ".[dev${EXTRAS:+,$EXTRAS}]"
+    "$VENV/bin/python" -m pip install -q -e ".[dev,robot${EXTRAS:+,$EXTRAS}]"
     rm -f "$VENV"/.installed-*
     touch "$stamp"
 fi

@@ -40,20 +40,32 @@ def test_truncated_and_foreign_files_are_one_clear_error(
     cut = tmp_path / "cut.DZT"
     cut.write_bytes(dzt.read_bytes()[:-100])
     for command in (["info", str(cut)], ["interpret", str(cut), "--out", str(tmp_path / "o")]):
-        assert main(command) == 2
+        assert main(command) == 1
         _one_error_line(capsys, "truncated", "--allow-partial")
     assert main(["info", str(cut), "--allow-partial"]) == 0
     capsys.readouterr()
     other = tmp_path / "notes.DZT"
     other.write_text("not a radar file at all\n" * 100)
-    assert main(["info", str(other)]) == 2
+    assert main(["info", str(other)]) == 1
     _one_error_line(capsys)
-    assert main(["info", str(tmp_path / "missing.DZT")]) == 2
+    assert main(["info", str(tmp_path / "missing.DZT")]) == 1
     _one_error_line(capsys, "check the path")
 
 
 def test_bad_config_key_is_one_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("survey:\n  spacing: 0.1\n")
-    assert main(["demo", "--offline", "--config", str(bad), "--out", str(tmp_path / "run")]) == 2
+    assert main(["demo", "--offline", "--config", str(bad), "--out", str(tmp_path / "run")]) == 1
     _one_error_line(capsys, "survey.spacing", "unknown key")
+
+
+def test_demo_json_is_the_only_thing_on_stdout(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    small = tmp_path / "small.yaml"
+    small.write_text("survey:\n  lines: 2\n  length_m: 0.8\nsim:\n  poses: noise\n")  # seconds, not a minute
+    assert main(["demo", "--offline", "--config", str(small), "--out", str(tmp_path / "run"), "--json"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    (scene,) = summary["scenes"]
+    assert scene["scene"] == "paper_slab" and scene["lines"] == 2 and scene["out_dir"] == str(tmp_path / "run")
+    assert isinstance(scene["within_bounds"], bool) and scene["matches"] and "truth" in scene["matches"][0]
+    assert captured.err == ""  # no progress bar: stderr is not a terminal

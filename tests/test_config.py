@@ -71,3 +71,31 @@ def test_relative_model_paths_are_read_from_the_checkout_not_the_working_directo
     assert model_path(cfg.reconstruction.gprnet_model).is_file()
     assert model_path(cfg.interpretation.migrationnet_model).is_file()
     assert model_path("/opt/x.onnx") == Path("/opt/x.onnx")
+
+
+def test_models_are_found_in_an_installed_wheel_or_models_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import gprbot.config as config_module
+    from gprbot.errors import ModelError
+
+    site = tmp_path / "site-packages"  # a wheel install: no checkout models/ beside the package
+    packaged = site / "gprbot" / "models"
+    packaged.mkdir(parents=True)
+    (packaged / "gprnet.onnx").write_bytes(b"onnx")
+    monkeypatch.setattr(config_module, "CHECKOUT_ROOT", site)
+    monkeypatch.setattr(config_module, "PACKAGED_MODELS", packaged)
+    assert model_path("models/gprnet.onnx") == packaged / "gprnet.onnx"  # before: site-packages/models/...
+    with pytest.raises(ModelError, match="models_dir"):
+        model_path("models/migrationnet.onnx")
+    mine = tmp_path / "my-models"
+    mine.mkdir()
+    (mine / "migrationnet.onnx").write_bytes(b"onnx")
+    assert model_path("models/migrationnet.onnx", str(mine)) == mine / "migrationnet.onnx"
+    with pytest.raises(ModelError, match=f"not in models_dir {mine}"):
+        model_path("models/gprnet.onnx", str(mine))
+
+
+def test_builtin_configs_load_by_name(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # an installed gprbot: no configs/ directory in sight
+    assert load_config("sim_learned").interpretation.method == "migrationnet"
+    with pytest.raises(ConfigError, match="built-in configs: robot, sim, sim_learned"):
+        load_config("no_such_config")

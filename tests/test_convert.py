@@ -119,7 +119,7 @@ def test_real_files_convert_to_every_format_and_readgssi_reads_the_dzt(path: Pat
 
 def test_convert_refuses_a_read_only_target(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     write_radargram(tmp_path / "a.su", synthetic())
-    assert main(["convert", str(tmp_path / "a.su"), str(tmp_path / "b.rd3")]) == 2
+    assert main(["convert", str(tmp_path / "a.su"), str(tmp_path / "b.rd3")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and ".DZT, .DT1" in err
 

@@ -46,10 +46,10 @@ def test_cli_demo_bad_scene_is_one_clear_error(tmp_path: Path, capsys: pytest.Ca
     bad.write_text("slab: {size_m: [2, 1], origin_m: [0, 0], thickness_m: 0.4, eps_r: 6, loss_db_per_m: 10}\n"
                    "pipes: [{name: p, points: [[0.5, 0, 0.2], [0.5, 1, 0.2]], radius_m: -1, fill: metal}]\n")
     for mode in (["--offline"], []):  # both paths refuse it before anything runs
-        assert main(["demo", *mode, "--scene", str(bad), "--out", str(tmp_path / "run")]) == 2
+        assert main(["demo", *mode, "--scene", str(bad), "--out", str(tmp_path / "run")]) == 1
         err = capsys.readouterr().err
         assert err.startswith("gprbot: error:") and "radius_m" in err and "Traceback" not in err
-        assert main(["demo", *mode, "--scene", "no_such_scene", "--out", str(tmp_path / "run")]) == 2
+        assert main(["demo", *mode, "--scene", "no_such_scene", "--out", str(tmp_path / "run")]) == 1
 
 
 def test_learned_config_runs_migrationnet_and_gprnet_and_finds_the_paper_slab_pipes(tmp_path: Path) -> None:

@@ -46,7 +46,7 @@ def test_foreign_file_is_not_guessed(tmp_path: Path, capsys: pytest.CaptureFixtu
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 10)
     with pytest.raises(DataFormatError, match="not a GPR file"):
         detect_format(path)
-    assert main(["info", str(path)]) == 2
+    assert main(["info", str(path)]) == 1
     assert capsys.readouterr().err.count("\n") == 1
 
 

@@ -30,9 +30,13 @@ def test_interpret_reports_the_mesh_as_rebars_and_how_the_velocity_was_found(
     for key in ("cover_m", "radius_sigma_m", "radius_supported", "fill_hint", "confidence", "found_by"):
         assert key in result["rebars"][0]
     assert (tmp_path / "bscan.png").stat().st_size > 0 and (tmp_path / "section.png").stat().st_size > 0
+    # --json prints detections.json itself (and nothing else) on stdout
+    assert main(["interpret", str(SSMINI), "--out", str(tmp_path / "j"), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((tmp_path / "j" / "detections.json").read_text())
 
 
 @pytest.mark.skipif(not SSMINI.exists(), reason="shared/data/real is not beside the checkout")
 def test_interpret_refuses_an_impossible_antenna_geometry(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["interpret", str(SSMINI), "--height", "-0.1", "--out", str(tmp_path)]) == 2
+    assert main(["interpret", str(SSMINI), "--height", "-0.1", "--out", str(tmp_path)]) == 2  # a usage error
     assert "--height" in capsys.readouterr().err

@@ -413,7 +413,7 @@ def test_pull_main_command_line_end_to_end(
     assert pull_main([f"127.0.0.1:{threaded_server.port}", "run1", str(dest)]) == 0
     assert (dest / "pipes.json").read_text() == '{"pipes": []}\n'
     assert str(dest / "cloud.ply") in capsys.readouterr().out
-    assert pull_main([f"127.0.0.1:{threaded_server.port}", "nope", str(dest)]) == 2
+    assert pull_main([f"127.0.0.1:{threaded_server.port}", "nope", str(dest)]) == 1
     assert "not_found" in capsys.readouterr().err
 
 
@@ -428,6 +428,26 @@ def test_interactive_shell_in_a_subprocess(threaded_server: ShellServer, tmp_pat
     assert "  mode idle\n" in done.stdout and "ok status\n" in done.stdout
     assert "error bad_command unknown command 'fly'" in done.stdout
     assert (tmp_path / "pipes.json").read_text() == '{"pipes": []}\n'
+    failed = subprocess.run(  # like sh: the exit status is the last command's
+        [sys.executable, "-c", script, f"127.0.0.1:{threaded_server.port}"], input="status\nfly\n",
+        capture_output=True, text=True, timeout=30, cwd=tmp_path, env={**os.environ, "HOME": str(tmp_path)},
+    )
+    assert failed.returncode == 1, failed.stderr
+
+
+def test_shell_dash_c_exits_with_the_replys_status(threaded_server: ShellServer,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    from gprbot.cli import main
+
+    address = f"127.0.0.1:{threaded_server.port}"
+    assert main(["shell", address, "-c", "status"]) == 0
+    assert "ok status" in capsys.readouterr().out
+    assert main(["shell", address, "-c", "status", "-c", "fly", "-c", "status"]) == 1
+    out = capsys.readouterr().out
+    assert "error bad_command unknown command 'fly'" in out and out.count("ok status") == 1  # stops at the error
+    assert main(["shell", address, "-c", "estop"]) == 0
+    assert main(["shell", address, "-c", "jog 0.1 0 1"]) == 1
+    assert "estopped" in capsys.readouterr().out
 
 
 async def test_close_does_not_wait_for_a_stuck_handler(runs_dir: Path) -> None:

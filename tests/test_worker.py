@@ -6,12 +6,13 @@ import asyncio
 import dataclasses
 import os
 import signal
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from gprbot.config import Config, load_config
+from gprbot.config import Config, load_config, to_dict
 from gprbot.errors import GprbotError
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.preprocess import preprocess
@@ -58,7 +59,7 @@ async def _kill_when_busy(worker: InferenceWorker, times: int) -> list[int]:
     return killed
 
 
-async def test_worker_matches_in_process_and_keeps_the_loop_responsive(survey: Any) -> None:
+async def test_worker_matches_in_process_and_keeps_the_loop_responsive(survey: Any, tmp_path: Path) -> None:
     cfg, bscans, want = survey
     worker = InferenceWorker(cfg)
     await worker.start()
@@ -78,6 +79,11 @@ async def test_worker_matches_in_process_and_keeps_the_loop_responsive(survey: A
         line = await worker.interpret_line(1, bscans[1], want.velocity_m_per_ns)
         estimate = await worker.interpret_line(2, bscans[2], None)
         ticks.cancel()
+        # the run directory is written in the worker: matplotlib's pictures never hold the daemon's GIL
+        written = await worker.write_outputs(tmp_path / "run", got, {"run": "run", "config": to_dict(cfg)},
+                                             (-0.2, 1.2, -0.2, 0.4), [], bscans)
+        assert {"pipes.json", "pipes.dxf", "bscan_line01.png", "depth_slices.png"} <= {p.name for p in written}
+        assert all(p.is_file() for p in written)
         assert_same_survey(got, want)
         assert len(lags) > 50 and max(lags) < 0.2, f"max event-loop lag {max(lags):.3f} s"
         assert 0 < got.timings_s["worker_compute"] <= got.timings_s["round_trip"]
@@ -94,7 +100,7 @@ async def test_worker_matches_in_process_and_keeps_the_loop_responsive(survey: A
         assert 0.05 < estimate.velocity_m_per_ns < 0.3
 
         health = worker.health()
-        assert health.alive and health.jobs_done == 3 and health.restarts == 0 and health.jobs_failed == 0
+        assert health.alive and health.jobs_done == 4 and health.restarts == 0 and health.jobs_failed == 0
         assert health.last_timings_s == estimate.timings_s
 
         in_flight = asyncio.create_task(worker.finish_survey(bscans))

@@ -34,6 +34,7 @@ from gprbot.infer.completion import Reconstruction, geometric_completion
 from gprbot.infer.gprnet import gprnet_reconstruction
 from gprbot.infer.pipeline import gprnet_completion, interpret_line, survey_velocity
 from gprbot.infer.register import resample_cloud
+from gprbot.progress import track
 from gprbot.sim.scene import Scene
 from training.chamfer import cloud_metrics
 from training.migration_data import simulate_line
@@ -134,7 +135,7 @@ def evaluate(limit: int | None, model_threads: int = 2) -> dict[str, Any]:
     failures: list[str] = []
     count = len(data["seed"]) if limit is None else min(limit, len(data["seed"]))
     start = time.perf_counter()
-    for i in range(count):
+    for i in track(range(count), "test scenes", unit="scene"):
         try:
             rows += evaluate_scene(i, data, base, model_threads)
         except GprbotError as exc:  # a chain that refuses a scene is counted, not hidden

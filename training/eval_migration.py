@@ -32,6 +32,7 @@ from gprbot.gpr.interpret import interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.infer.migrationnet import MigrationNetInterpreter
+from gprbot.progress import track
 from gprbot.sim.truth import cross_section_mask
 from training.migration_data import simulate_line
 from training.random_scenes import CASES, gpr_config, scene_for_seed, split_seeds
@@ -121,7 +122,7 @@ def evaluate_migration(test_seeds: Sequence[int], model_path: Path, threads: int
     scores: dict[str, dict[str, _Score]] = defaultdict(lambda: defaultdict(_Score))
     seconds: dict[str, list[float]] = {m: [] for m in methods}
     failures = dict.fromkeys(methods, 0)
-    for seed in test_seeds:
+    for seed in track(test_seeds, "scenes", unit="scene"):
         scene, spec = scene_for_seed(seed)
         case = CASES[seed % len(CASES)]
         gpr = gpr_config(spec, scene)

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from gprbot.config import ReconstructionConfig
 from gprbot.infer.completion import geometric_completion
 from gprbot.infer.gprnet import INPUT_NAME
+from gprbot.progress import track
 from gprbot.sim.truth import sample_pipe_interiors
 from training.chamfer import cloud_metrics
 from training.pointcloud_data import CACHE_DIR, DENSE_POINTS, load_split, survey_slices
@@ -69,7 +70,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
 def score(predict: Callable[[int], Cloud], data: dict[str, Any]) -> list[dict[str, Any]]:
     """Metrics of predict(sample index) against each test sample's truth."""
     rows = []
-    for i in range(len(data["seed"])):
+    for i in track(range(len(data["seed"])), "scoring", unit="sample"):
         m = cloud_metrics(predict(i), data["dense"][i])
         rows.append({"seed": int(data["seed"][i]), "case": str(data["case"][i]), "cd2": m.cd2, "cd1": m.cd1,
                      "fscore": m.fscore})

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.infer.migrationnet import cut_tiles, depth_grid, depth_section
+from gprbot.progress import track
 from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.scene import Scene
 from gprbot.sim.truth import cross_section_mask
@@ -113,9 +114,9 @@ def build_split(split: Literal["train", "val", "test"], workers: int = 1, limit:
     jobs = [(s, split) for s in seeds]
     if workers > 1:
         with Pool(workers) as pool:
-            parts = pool.map(_scene_tiles_args, jobs, chunksize=8)
+            parts = list(track(pool.imap(_scene_tiles_args, jobs, chunksize=8), f"{split} tiles", len(jobs), "scene"))
     else:
-        parts = [_scene_tiles_args(j) for j in jobs]
+        parts = [_scene_tiles_args(j) for j in track(jobs, f"{split} tiles", unit="scene")]
     x = np.concatenate([p[0] for p in parts])
     y = np.concatenate([p[1] for p in parts])
     seconds = time.perf_counter() - start

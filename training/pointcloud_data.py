@@ -25,6 +25,7 @@ from scipy import ndimage
 from gprbot.errors import ConfigError
 from gprbot.infer.gprnet import normalisation
 from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
+from gprbot.progress import track
 from gprbot.sim.truth import cross_section_mask, sample_pipe_interiors
 from training.random_scenes import CASES, line_antenna_xy, recorded_positions, scene_for_seed, split_seeds
 
@@ -116,7 +117,7 @@ def cache_path(split: str) -> Path:
 def build_split(split: str, limit: int | None = None) -> dict[str, NDArray[np.generic]]:
     """Generate every sample of a split (optionally only the first `limit` seeds) as stacked arrays."""
     seeds = list(split_seeds(split))[:limit]  # type: ignore[arg-type]
-    samples = [s for s in map(make_sample, seeds) if s is not None]
+    samples = [s for s in map(make_sample, track(seeds, f"{split} samples", unit="sample")) if s is not None]
     return {
         "seed": np.array([s.seed for s in samples]),
         "case": np.array([s.case for s in samples]),

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from gprbot.progress import track
 from training.migration_data import LINES_PER_SCENE, VELOCITY_JITTER, build_split, load_split
 from training.migrationnet import MigrationNet, bce_dice_loss, build_migrationnet
 
@@ -117,7 +118,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         t0 = time.perf_counter()
         order = torch.randperm(len(x_train), generator=gen).numpy()
         running = 0.0
-        for step in range(steps_per_epoch):
+        for step in track(range(steps_per_epoch), f"epoch {epoch + 1}/{args.epochs}", unit="step"):
             idx = np.sort(order[step * args.batch:(step + 1) * args.batch])
             xb = torch.from_numpy(x_train[idx].astype(np.float32))
             yb = torch.from_numpy(y_train[idx].astype(np.float32))

@@ -1,141 +1,209 @@
-"""PNG pictures of B-scans and cross-sections (cv2), with axes, scales and the detections drawn.
+"""PNG pictures of B-scans and cross-sections (matplotlib, Agg), drawn as a GPR analyst reads them.
 
-Colours (BGR): the cross-section mask's outline is green, the truth mask's (if given) red, and each
-detection a yellow cross with its depth and radius.
+The B-scan has two-way time on the left and depth (at the velocity used) on the right, a colour bar
+and a note of the processing; the horizontal axis is the site coordinate the line runs along, so a
+backward line reads left to right like `map.png`. The cross-section states its velocity's provenance
+and its vertical exaggeration, and labels each pipe with the depth of its centre and its diameter.
+Colours: the mask outline is green, the truth outline (if given) red, pipes yellow crosses, rebars magenta.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
+from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from gprbot.atomic_files import write_bytes_atomic
-from gprbot.errors import DataFormatError
 from gprbot.gpr.bscan import BScan, CrossSection
 from gprbot.gpr.migration import envelope
+from gprbot.plotting import new_figure, placed_axes, save_png
 
-_MARGIN_LEFT, _MARGIN_BOTTOM, _MARGIN_TOP, _MARGIN_RIGHT = 70, 50, 30, 20
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
-_WHITE, _GREEN, _RED, _YELLOW = (255, 255, 255), (0, 200, 0), (0, 0, 255), (0, 220, 255)
-_MAGENTA = (255, 0, 255)
-_TARGET_WIDTH, _TARGET_HEIGHT = 900, 500
-
-
-def _grey(values: NDArray[np.floating], symmetric: bool) -> NDArray[np.uint8]:
-    """Values as an 8-bit image: symmetric (mid-grey zero) or 0..max, clipped at the 99.5th percentile."""
-    v = np.asarray(values, dtype=np.float64)
-    scale = float(np.percentile(np.abs(v), 99.5)) or 1.0
-    scaled = 128.0 + 127.0 * v / scale if symmetric else 255.0 * np.abs(v) / scale
-    return np.clip(scaled, 0, 255).astype(np.uint8)
+GREEN, RED, YELLOW, MAGENTA = "#00c800", "#ff0000", "#ffdc00", "#ff00ff"
+_STEP_NAMES = {"dewow": "dewow", "background": "background removed"}
+_FIG_SIZE_IN = (10.0, 5.0)
+_SECTION_WIDTH_IN = 7.85  # the image's width in a 10-inch figure (0.8 in of depth labels, 1.35 in of colour bar)
 
 
-def _nice_step(span: float, ticks: int = 6) -> float:
-    """A 1-2-5 tick step giving about `ticks` ticks over span."""
-    raw = max(span, 1e-12) / ticks
-    power = 10.0 ** math.floor(math.log10(raw))
-    return next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= raw)
+@dataclass(frozen=True)
+class SiteAxis:
+    """How along-track metres map onto the site axis a line runs along (x or y), for drawing."""
+
+    name: str  # "x" or "y"
+    origin_m: float  # site coordinate at along-track 0
+    sign: float  # +1 when the site coordinate grows with along-track distance
+
+    def of(self, along_m: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """Site coordinate(s) of along-track distance(s)."""
+        return np.asarray(self.origin_m + self.sign * np.asarray(along_m, dtype=np.float64))
+
+    @property
+    def label(self) -> str:
+        """Axis label saying which way the robot drove."""
+        if self.name == "along":
+            return "distance from the first trace (m)"
+        way = "robot drove →" if self.sign > 0 else "robot drove ←"
+        return f"site {self.name} (m)   [{way}]"
 
 
-def _framed(
-    image: NDArray[np.uint8], x_range: tuple[float, float], y_range: tuple[float, float],
-    x_label: str, y_label: str, title: str,
-) -> tuple[NDArray[np.uint8], tuple[float, float, float, float]]:
-    """Resize the picture to a readable size and add axes with ticks; returns it and the pixel mapping.
-
-    The mapping (x_scale, x_offset, y_scale, y_offset) turns data coordinates into canvas pixels.
-    """
-    h, w = image.shape[:2]
-    width = max(w, min(_TARGET_WIDTH, 4 * w))
-    height = max(h, min(_TARGET_HEIGHT, 4 * h))
-    body = cv2.resize(image, (width, height), interpolation=cv2.INTER_NEAREST)
-    if body.ndim == 2:
-        body = cv2.cvtColor(body, cv2.COLOR_GRAY2BGR)
-    canvas = np.zeros((height + _MARGIN_TOP + _MARGIN_BOTTOM, width + _MARGIN_LEFT + _MARGIN_RIGHT, 3), np.uint8)
-    canvas[_MARGIN_TOP : _MARGIN_TOP + height, _MARGIN_LEFT : _MARGIN_LEFT + width] = body
-    (x0, x1), (y0, y1) = x_range, y_range
-    sx = width / max(x1 - x0, 1e-12)
-    sy = height / max(y1 - y0, 1e-12)
-    mapping = (sx, _MARGIN_LEFT - x0 * sx, sy, _MARGIN_TOP - y0 * sy)
-    step = _nice_step(x1 - x0)
-    for tick in np.arange(math.ceil(x0 / step) * step, x1 + 1e-9, step):
-        px = round(mapping[0] * tick + mapping[1])
-        cv2.line(canvas, (px, _MARGIN_TOP + height), (px, _MARGIN_TOP + height + 6), _WHITE, 1)
-        cv2.putText(canvas, f"{tick:g}", (px - 12, _MARGIN_TOP + height + 22), _FONT, 0.45, _WHITE, 1)
-    step = _nice_step(y1 - y0)
-    for tick in np.arange(math.ceil(y0 / step) * step, y1 + 1e-9, step):
-        py = round(mapping[2] * tick + mapping[3])
-        cv2.line(canvas, (_MARGIN_LEFT - 6, py), (_MARGIN_LEFT, py), _WHITE, 1)
-        cv2.putText(canvas, f"{tick:g}", (4, py + 5), _FONT, 0.45, _WHITE, 1)
-    cv2.putText(canvas, x_label, (_MARGIN_LEFT + width // 2 - 40, canvas.shape[0] - 8), _FONT, 0.5, _WHITE, 1)
-    cv2.putText(canvas, y_label, (4, _MARGIN_TOP - 10), _FONT, 0.5, _WHITE, 1)
-    cv2.putText(canvas, title, (_MARGIN_LEFT + 60, _MARGIN_TOP - 10), _FONT, 0.5, _WHITE, 1)
-    return canvas, mapping
+ALONG_TRACK = SiteAxis("along", 0.0, 1.0)
 
 
-def _write(path: str | Path, canvas: NDArray[np.uint8]) -> None:
-    """Encode a PNG and write it atomically (like every other output), errors naming the path."""
-    target = Path(path)
-    try:
-        ok, encoded = cv2.imencode(".png", canvas)
-    except cv2.error as exc:
-        raise DataFormatError(f"cannot encode PNG {target}: {exc}") from exc
-    if not ok:
-        raise DataFormatError(f"cannot encode PNG {target}")
-    try:
-        write_bytes_atomic(target, encoded.tobytes())
-    except OSError as exc:
-        raise DataFormatError(f"cannot write PNG {target}: {exc.strerror}; check that its directory exists "
-                              "and is writable") from exc
-
-
-def write_bscan_png(path: str | Path, bscan: BScan) -> None:
-    """The B-scan as a grey image: along-track distance (m) across, time after transmit (ns) down."""
+def site_axis(bscan: BScan) -> SiteAxis:
+    """The site axis (x or y) a line mostly runs along, and its direction along the line."""
     along = bscan.along_track_m()
-    n_samples = bscan.data.shape[1]
+    p = np.asarray(bscan.positions, dtype=np.float64)
+    span = np.ptp(p[:, :2], axis=0)
+    k = int(np.argmax(span))
+    slope = float(np.polyfit(along, p[:, k], 1)[0]) if np.ptp(along) > 0 else 1.0
+    sign = 1.0 if slope >= 0 else -1.0
+    # origin: the site coordinate at along = 0, from the least-squares line (jitter-free)
+    origin = float(np.mean(p[:, k] - sign * along))
+    return SiteAxis("xy"[k], origin, sign)
+
+
+def processing_note(processing: tuple[str, ...]) -> str:
+    """The preprocessing steps in words, e.g. 'dewow, background removed, gain t^1 (cap 100×)'."""
+    words = []
+    for step in processing:
+        if step.startswith("gain:"):
+            _, power, cap = step.split(":")
+            words.append(f"gain t^{float(power):g} (cap {float(cap):g}×)")
+        elif step in _STEP_NAMES:
+            words.append(_STEP_NAMES[step])
+        elif step.startswith("direct:"):
+            continue  # the direct wave's polarity is bookkeeping, not processing
+        else:
+            words.append(step)
+    return ", ".join(words) if words else "raw (no processing)"
+
+
+def _uniform_columns(coord: NDArray[np.float64], spacing: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """A uniform grid over coord's range and, per grid column, the nearest trace (handles speed changes)."""
+    order = np.argsort(coord, kind="stable")
+    sorted_coord = coord[order]
+    n = max(2, round(float(np.ptp(coord)) / max(spacing, 1e-6)) + 1)
+    grid = np.linspace(sorted_coord[0], sorted_coord[-1], n)
+    idx = np.clip(np.searchsorted(sorted_coord, grid), 1, len(coord) - 1)
+    left_closer = (grid - sorted_coord[idx - 1]) < (sorted_coord[idx] - grid)
+    nearest = np.where(left_closer, idx - 1, idx)
+    return grid, order[nearest]
+
+
+def bscan_image(bscan: BScan, site_frame: bool = True) -> tuple[SiteAxis, NDArray[np.float64], NDArray[np.float64]]:
+    """The B-scan as drawn: its horizontal axis, the uniform grid on it (m), and (samples, columns) amplitudes."""
+    from gprbot.gpr.bscan import grid_spacing_m
+
+    axis = site_axis(bscan) if site_frame else ALONG_TRACK
+    along = bscan.along_track_m()
+    grid, columns = _uniform_columns(axis.of(along), grid_spacing_m(along))
+    return axis, grid, np.asarray(bscan.data, dtype=np.float64)[columns].T
+
+
+def write_bscan_png(
+    path: str | Path, bscan: BScan, velocity_m_per_ns: float | None = None,
+    velocity_note: str = "", title: str = "B-scan", site_frame: bool = True,
+) -> None:
+    """The B-scan: site coordinate across, two-way time (and depth at the velocity) down, colour bar, processing.
+
+    site_frame=False (a file without poses): distance from the first trace across instead.
+    """
+    axis, grid, data = bscan_image(bscan, site_frame)
+    n_samples = data.shape[0]
     t0 = bscan.t0_ns if math.isfinite(bscan.t0_ns) else 0.0
-    t_range = (-t0, (n_samples - 1) * bscan.dt_ns - t0)
-    order = np.argsort(along, kind="stable")
-    picture = _grey(np.asarray(bscan.data)[order].T, symmetric=True)
-    title = f"B-scan: {bscan.data.shape[0]} traces x {n_samples} samples"
-    canvas, _ = _framed(picture, (float(along.min()), float(along.max())), t_range, "x (m)", "t (ns)", title)
-    _write(path, canvas)
+    t_top, t_bottom = -t0, (n_samples - 1) * bscan.dt_ns - t0
+    clip = float(np.percentile(np.abs(data), 99.5)) or 1.0
+
+    fig = new_figure(_FIG_SIZE_IN, fixed_layout=True)
+    # right margin: the depth axis's ticks and label, then the colour bar and its label
+    ax, bar_ax = placed_axes(fig, 0.8, 2.0 if velocity_m_per_ns else 1.35, 0.85, 0.4,
+                             bar_gap_in=0.95 if velocity_m_per_ns else 0.2)
+    image = ax.imshow(data, cmap="gray", vmin=-clip, vmax=clip, aspect="auto", interpolation="nearest",
+                      extent=(float(grid[0]), float(grid[-1]), t_bottom, t_top))
+    ax.set_xlabel(axis.label)
+    ax.set_ylabel("two-way time after time zero (ns)")
+    if velocity_m_per_ns:
+        v = velocity_m_per_ns
+
+        def to_depth(t: ArrayLike) -> NDArray[np.float64]:
+            return np.asarray(t, dtype=np.float64) * v / 2.0
+
+        def to_time(d: ArrayLike) -> NDArray[np.float64]:
+            return 2.0 * np.asarray(d, dtype=np.float64) / v
+
+        depth_axis = ax.secondary_yaxis("right", functions=(to_depth, to_time))
+        depth_axis.set_ylabel(f"depth (m) at v = {v:.4f} m/ns")
+    colour_bar = fig.colorbar(image, cax=bar_ax)
+    colour_bar.set_label("amplitude (processed, clipped at 99.5 %)")
+    ax.set_title(f"{title}: {bscan.data.shape[0]} traces × {n_samples} samples, dt = {bscan.dt_ns:.3g} ns")
+    velocity = f"; velocity {velocity_note}" if velocity_m_per_ns and velocity_note else ""
+    footer = f"processing: {processing_note(bscan.processing)}; time zero at {t0:.2f} ns of the record{velocity}"
+    fig.text(0.5, 0.02, textwrap.fill(footer, 150), fontsize=8, color="#444444", ha="center", va="bottom")
+    save_png(fig, path)
 
 
-def _outline(canvas: NDArray[np.uint8], mask: NDArray[np.bool_], mapping: tuple[float, float, float, float],
-             x_m: NDArray[np.float64], z_m: NDArray[np.float64], colour: tuple[int, int, int]) -> None:
-    """Draw the outline of a (nz, nx) mask on the canvas."""
-    contours, _ = cv2.findContours(np.asarray(mask, np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    sx, ox, sz, oz = mapping
-    for contour in contours:
-        cols, rows = contour[:, 0, 0], contour[:, 0, 1]
-        pts = np.stack([sx * x_m[cols] + ox, sz * z_m[rows] + oz], axis=1).round().astype(np.int32)
-        cv2.polylines(canvas, [pts.reshape(-1, 1, 2)], True, colour, 1)
+def vertical_exaggeration(x_span_m: float, z_span_m: float, max_ratio: float = 3.5) -> float:
+    """1 (true scale) unless the section is wider than max_ratio × its depth; then a 1-2-5 factor that fits."""
+    ratio = x_span_m / max(z_span_m, 1e-9)
+    if ratio <= max_ratio:
+        return 1.0
+    needed = ratio / max_ratio
+    power = 10.0 ** math.floor(math.log10(needed))
+    return next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= needed * 0.999)
 
 
 def write_cross_section_png(
-    path: str | Path, section: CrossSection, truth_mask: NDArray[np.bool_] | None = None
+    path: str | Path, section: CrossSection, truth_mask: NDArray[np.bool_] | None = None,
+    bscan: BScan | None = None, velocity_note: str | None = None, title: str = "Cross-section",
 ) -> None:
-    """The migrated image's envelope, mask outline (green), truth outline (red), pipes (yellow), rebars (magenta)."""
-    x, z = section.x_m, section.z_m
-    picture = _grey(envelope(section.image), symmetric=False)
-    kind = "estimated" if section.velocity_estimated else "given"
-    title = (f"v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), {len(section.detections)} pipes"
-             + (f", {len(section.rebars)} rebars" if section.rebars else ""))
-    canvas, mapping = _framed(picture, (float(x[0]), float(x[-1])), (float(z[0]), float(z[-1])),
-                              "x (m)", "depth (m)", title)
-    if truth_mask is not None:
-        _outline(canvas, truth_mask, mapping, x, z, _RED)
-    _outline(canvas, section.mask, mapping, x, z, _GREEN)
-    sx, ox, sz, oz = mapping
+    """The migrated image's envelope, mask outline, truth outline, pipes (centre depth, diameter) and rebars.
+
+    With the line's B-scan the horizontal axis is the site coordinate (as on the map); velocity_note is the
+    velocity's true provenance (the survey's, when the section was interpreted at a velocity found for all lines).
+    """
+    axis = site_axis(bscan) if bscan is not None else ALONG_TRACK
+    x = axis.of(section.x_m)
+    z = np.asarray(section.z_m, dtype=np.float64)
+    picture = np.asarray(envelope(section.image), dtype=np.float64)
+    clip = float(np.percentile(picture, 99.5)) or 1.0
+    left, right = (0, -1) if axis.sign > 0 else (-1, 0)
+    extent = (float(x[left]), float(x[right]), float(z[-1]), float(z[0]))
+    exaggeration = vertical_exaggeration(abs(extent[1] - extent[0]), extent[2] - extent[3])
+    # the figure as tall as the section drawn at its aspect (plus titles), so the colour bar fits the image
+    drawn_ratio = exaggeration * (extent[2] - extent[3]) / max(abs(extent[1] - extent[0]), 1e-9)
+    height_in = min(max(_SECTION_WIDTH_IN * drawn_ratio + 1.4, 3.2), 9.0)
+
+    fig = new_figure((_FIG_SIZE_IN[0], height_in), fixed_layout=True)
+    ax, bar_ax = placed_axes(fig, 0.8, 1.35, 0.85, 0.55)
+    ax.set_anchor("W")
+    shown = picture if axis.sign > 0 else picture[:, ::-1]
+    image = ax.imshow(shown, cmap="gray", vmin=0.0, vmax=clip, extent=extent, interpolation="nearest")
+    ax.set_aspect(exaggeration)
+    xx, zz = np.meshgrid(x, z)
+    if truth_mask is not None and np.any(truth_mask):
+        ax.contour(xx, zz, np.asarray(truth_mask, np.float64), levels=[0.5], colors=RED, linewidths=1.0)
+    if np.any(section.mask):
+        ax.contour(xx, zz, np.asarray(section.mask, np.float64), levels=[0.5], colors=GREEN, linewidths=1.0)
     for d in section.detections:
-        px, pz = round(sx * d.x_m + ox), round(sz * d.depth_m + oz)
-        cv2.drawMarker(canvas, (px, pz), _YELLOW, cv2.MARKER_CROSS, 10, 1)
-        label = f"{d.depth_m:.2f} m, D {d.radius_m * 200:.1f} cm"
-        cv2.putText(canvas, label, (px + 6, pz - 6), _FONT, 0.4, _YELLOW, 1)
+        px = float(axis.of(d.x_m))
+        ax.plot([px], [d.depth_m], marker="+", markersize=12, markeredgewidth=2, color=YELLOW)
+        ax.annotate(f"Ø {d.radius_m * 200:.1f} cm, cover {d.depth_m - d.radius_m:.2f} m", (px, d.depth_m),
+                    xytext=(6, -10), textcoords="offset points", color=YELLOW, fontsize=8,
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "black", "alpha": 0.6, "lw": 0})
     for r in section.rebars:
-        cv2.circle(canvas, (round(sx * r.x_m + ox), round(sz * r.depth_m + oz)), 4, _MAGENTA, 1)
-    _write(path, canvas)
+        ax.plot([float(axis.of(r.x_m))], [r.depth_m], marker="o", markersize=5, fillstyle="none", color=MAGENTA)
+    ax.set_xlabel(axis.label)
+    ax.set_ylabel("depth below the surface (m)")
+    colour_bar = fig.colorbar(image, cax=bar_ax)
+    colour_bar.set_label("migrated envelope")
+    kind = velocity_note or ("estimated" if section.velocity_estimated else "given")
+    scale = "true scale" if exaggeration == 1.0 else f"vertical exaggeration ×{exaggeration:g}"
+    rebars = f", {len(section.rebars)} rebars" if section.rebars else ""
+    ax.set_title(textwrap.fill(f"{title}: v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), "
+                               f"{len(section.detections)} pipes{rebars}; {scale}", 110), fontsize=10)
+    legend = "green: cross-section mask" + ("   red: truth" if truth_mask is not None else "")
+    fig.text(0.5, 0.02, f"{legend}   yellow +: pipe centre (label: diameter, depth of cover to its top)   "
+             "magenta o: rebar", fontsize=8, color="#444444", ha="center", va="bottom")
+    save_png(fig, path)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -59,15 +59,17 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float,
 
 
 @functools.lru_cache(maxsize=2)
-def migrationnet_interpreter(configured_path: str, threads: int) -> MigrationNetInterpreter:
+def migrationnet_interpreter(
+    configured_path: str, threads: int, models_dir: str | None = None
+) -> MigrationNetInterpreter:
     """MigrationNet's session, loaded and warmed up once per process (the worker keeps it between lines)."""
-    return MigrationNetInterpreter(model_path(configured_path), threads=threads)
+    return MigrationNetInterpreter(model_path(configured_path, models_dir), threads=threads)
 
 
 @functools.lru_cache(maxsize=2)
-def gprnet_completion(configured_path: str, threads: int) -> GprnetCompletion:
+def gprnet_completion(configured_path: str, threads: int, models_dir: str | None = None) -> GprnetCompletion:
     """GPRNet's session, loaded and warmed up once per process."""
-    return GprnetCompletion(model_path(configured_path), threads, expect_name="gprnet")
+    return GprnetCompletion(model_path(configured_path, models_dir), threads, expect_name="gprnet")
 
 
 def interpret_line(
@@ -75,7 +77,8 @@ def interpret_line(
 ) -> LineResult:
     """Interpret one preprocessed line (MigrationNet or classical, as configured) and register it in 3D."""
     if cfg.interpretation.method == "migrationnet":
-        interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads)
+        interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads,
+                                              cfg.models_dir)
         section = interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
     else:
         section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
@@ -93,19 +96,38 @@ def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detecti
     return tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in found.rebars)
 
 
-def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.Generator) -> SurveyResult:
-    """Interpret every line of a survey and complete the registered slices into pipes."""
+def survey_steps(n_lines: int) -> int:
+    """How many times reconstruct_survey calls on_step: preprocess, velocity, each line, completion."""
+    return n_lines + 3
+
+
+def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.Generator,
+                       on_step: Callable[[str], None] | None = None) -> SurveyResult:
+    """Interpret every line of a survey and complete the registered slices into pipes.
+
+    on_step(what) is called after each step (for a progress bar; survey_steps(n) steps in all).
+    """
+    step = on_step or (lambda _: None)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     processed = {line: preprocess(b, cfg.gpr) for line, b in sorted(bscans.items())}
     timings["preprocess"] = time.perf_counter() - t0
+    step("preprocessed")
 
     t0 = time.perf_counter()
     velocity, estimated, hints = survey_velocity(processed, cfg)
     timings["velocity"] = time.perf_counter() - t0
+    step("velocity")
 
     t0 = time.perf_counter()
-    lines = tuple(interpret_line(line, b, cfg, velocity, hints) for line, b in processed.items())
+    interpreted = []
+    for line, b in processed.items():
+        interpreted.append(interpret_line(line, b, cfg, velocity, hints))
+        step(f"line {line}")
+    lines = tuple(interpreted)
+    # Each line was interpreted AT the survey's velocity, so its section would say "given"; the truth is
+    # how the survey found it (all lines' hyperbolas, or the configured eps_r).
+    lines = tuple(replace(lr, section=replace(lr.section, velocity_estimated=estimated)) for lr in lines)
     timings["interpret"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -115,10 +137,12 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     if cfg.reconstruction.completion == "gprnet":
         # GPRNet gives the dense cloud; the pipes (pipes.json) still come from the fit through the slices,
         # which needs to know which points came from which survey line.
-        completion = gprnet_completion(cfg.reconstruction.gprnet_model, cfg.reconstruction.model_threads)
+        completion = gprnet_completion(cfg.reconstruction.gprnet_model, cfg.reconstruction.model_threads,
+                                       cfg.models_dir)
         reconstruction = gprnet_reconstruction(slices, sparse, cfg.reconstruction, completion, rng)
         timings["gprnet"] = completion.last_seconds
     else:
         reconstruction = geometric_completion(slices, cfg.reconstruction, rng)
     timings["reconstruct"] = time.perf_counter() - t0
+    step("completion")
     return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings)

@@ -1,4 +1,4 @@
-"""Write a survey's results into a run directory: PLYs, pipes.json, PNGs and summary.json."""
+"""Write a survey's results into a run directory: PLYs, pipes.json, exports (DXF, GeoJSON, CSV), PNGs, summary.json."""
 
 from __future__ import annotations
 
@@ -8,13 +8,27 @@ from typing import Any
 
 import numpy as np
 
+from gprbot.config import GeoreferenceConfig, build_dataclass
+from gprbot.exports.dxf import write_dxf
+from gprbot.exports.geojson import write_geojson
+from gprbot.exports.georef import Georeference
+from gprbot.exports.tables import (
+    DETECTION_COLUMNS,
+    PIPE_COLUMNS,
+    detection_rows,
+    header_of,
+    pipe_rows,
+    write_csv,
+)
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.formats.export import export_survey_lines
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
 from gprbot.infer.completion import pipe_colors
+from gprbot.infer.depth_slices import depth_bands, depth_slices, render_depth_slices
 from gprbot.infer.outputs import write_json_atomic, write_pipes_json
 from gprbot.infer.pipeline import SurveyResult
 from gprbot.infer.ply import write_ply
+from gprbot.infer.render3d import render_3d
 from gprbot.infer.topdown import render_topdown
 
 SPARSE_PLY = "sparse.ply"
@@ -22,6 +36,41 @@ DENSE_PLY = "dense.ply"
 PIPES_JSON = "pipes.json"
 SUMMARY_JSON = "summary.json"
 REBARS_JSON = "rebars.json"
+PIPES_DXF = "pipes.dxf"
+PIPES_GEOJSON = "pipes.geojson"
+PIPES_CSV = "pipes.csv"
+DETECTIONS_CSV = "detections.csv"
+DEPTH_SLICES_PNG = "depth_slices.png"
+RENDER_3D_PNG = "render3d.png"
+
+
+def georeference_of(meta: Mapping[str, Any]) -> Georeference | None:
+    """The georeference in the run's resolved config (meta["config"]), if it has one."""
+    section = (meta.get("config") or {}).get("georeference")
+    return Georeference(build_dataclass(GeoreferenceConfig, section, "georeference")) if section else None
+
+
+def velocity_note(result: SurveyResult) -> str:
+    """Where the survey's velocity came from, in words."""
+    return "estimated from all lines' hyperbolas" if result.velocity_estimated else "from the configured eps_r"
+
+
+def write_exports(out_dir: Path, result: SurveyResult, meta: Mapping[str, Any]) -> list[Path]:
+    """pipes.dxf, pipes.csv, detections.csv, and pipes.geojson when the site is georeferenced."""
+    georef = georeference_of(meta)
+    pipes = result.reconstruction.pipes
+    rebars = rebars_record(result)["rebars"]
+    lines = {lr.line: lr.bscan.positions[:, :2] for lr in result.lines}
+    write_dxf(out_dir / PIPES_DXF, pipes, rebars, lines, georef, meta)
+    rows = pipe_rows(pipes, georef)
+    write_csv(out_dir / PIPES_CSV, rows, header_of(rows, PIPE_COLUMNS))
+    rows = detection_rows(result, georef)
+    write_csv(out_dir / DETECTIONS_CSV, rows, header_of(rows, DETECTION_COLUMNS))
+    written = [out_dir / PIPES_DXF, out_dir / PIPES_CSV, out_dir / DETECTIONS_CSV]
+    if georef is not None and georef.has_wgs84:
+        write_geojson(out_dir / PIPES_GEOJSON, pipes, rebars, lines, georef, meta)
+        written.append(out_dir / PIPES_GEOJSON)
+    return written
 
 
 def rebars_record(result: SurveyResult) -> dict[str, Any]:
@@ -61,12 +110,15 @@ def write_survey_outputs(
     write_json_atomic(out_dir / REBARS_JSON, rebars_record(result))
     written.append(out_dir / REBARS_JSON)
 
+    written += write_exports(out_dir, result, meta)
+
+    note = velocity_note(result)
     for lr in result.lines:
         bscan_png = out_dir / f"bscan_line{lr.line:02d}.png"
-        write_bscan_png(bscan_png, lr.bscan)
+        write_bscan_png(bscan_png, lr.bscan, result.velocity_m_per_ns, note, title=f"Line {lr.line} B-scan")
         section_png = out_dir / f"section_line{lr.line:02d}.png"
         truth = truth_masks.get(lr.line) if truth_masks else None
-        write_cross_section_png(section_png, lr.section, truth)
+        write_cross_section_png(section_png, lr.section, truth, lr.bscan, note, title=f"Line {lr.line}")
         written += [bscan_png, section_png]
 
     if raw_lines:  # the recorded traces, for GPR programs: line-NN.DZT, .DT1/.HD, -poses.csv
@@ -75,6 +127,13 @@ def write_survey_outputs(
     map_png = out_dir / "map.png"
     render_topdown(map_png, recon, extent_xy, truth_axes or [], survey_lines)
     written.append(map_png)
+    if result.lines:
+        depth_max = max(float(lr.section.z_m[-1]) for lr in result.lines)
+        slices = depth_slices(result, depth_bands(depth_max), extent_xy)
+        render_depth_slices(out_dir / DEPTH_SLICES_PNG, result, slices, note)
+        written.append(out_dir / DEPTH_SLICES_PNG)
+    render_3d(out_dir / RENDER_3D_PNG, recon, survey_lines)
+    written.append(out_dir / RENDER_3D_PNG)
 
     summary = {
         **meta,

@@ -18,6 +18,7 @@ import multiprocessing
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from gprbot import errors
@@ -105,6 +106,14 @@ class InferenceWorker:
         result: SurveyResult = reply
         self._last_timings = {**result.timings_s, **timings}
         return dataclasses.replace(result, timings_s=dict(self._last_timings))
+
+    async def write_outputs(self, out_dir: Path, result: SurveyResult, meta: dict[str, Any],
+                            extent: tuple[float, float, float, float], truth_axes: list[Any],
+                            raw_lines: dict[int, BScan]) -> list[Path]:
+        """Write a survey's run directory (PLYs, exports, pictures) in the worker process; the paths written."""
+        reply, _ = await self._job("write_outputs", (str(out_dir), result, meta, extent, truth_axes, raw_lines),
+                                   f"the results of {out_dir.name}")
+        return [Path(p) for p in reply]
 
     async def close(self) -> None:
         """Stop the worker process (a job in flight is killed and fails) and the exchange thread."""

@@ -81,7 +81,8 @@ def _load_jobs() -> dict[str, Callable[..., Any]]:
     """Import the pipeline (the warm-up: numpy, scipy and the interpreters load here, not in the first job)."""
     import gprbot.infer.pipeline  # noqa: F401
 
-    return {"interpret_line": _interpret_line_job, "finish_survey": _finish_survey_job}
+    return {"interpret_line": _interpret_line_job, "finish_survey": _finish_survey_job,
+            "write_outputs": _write_outputs_job}
 
 
 def _interpret_line_job(cfg: Config, line: int, bscan: BScan, velocity_hint: float | None) -> LineJobResult:
@@ -125,3 +126,16 @@ def _finish_survey_job(cfg: Config, bscans: dict[int, BScan]) -> SurveyResult:
     from gprbot.infer.pipeline import reconstruct_survey
 
     return reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
+
+
+def _write_outputs_job(cfg: Config, out_dir: str, result: SurveyResult, meta: dict[str, Any],
+                       extent: tuple[float, float, float, float], truth_axes: list[Any],
+                       raw_lines: dict[int, BScan]) -> list[str]:
+    # Here, not in the daemon: matplotlib holds the GIL for seconds per picture, and the daemon's
+    # event loop runs the 50 Hz motor control.
+    from pathlib import Path
+
+    from gprbot.infer.run_files import write_survey_outputs
+
+    return [str(p) for p in write_survey_outputs(Path(out_dir), result, meta, extent, truth_axes,
+                                                 raw_lines=raw_lines)]

@@ -29,6 +29,7 @@ from gprbot.infer.run_files import write_survey_outputs
 from gprbot.infer.worker import InferenceWorker
 from gprbot.messages import Trace
 from gprbot.motion.planner import Segment, SurveyPlan, plan_survey
+from gprbot.retention import prune_runs
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
 from gprbot.robot.tracking import tracking_velocity
@@ -217,6 +218,10 @@ class SurveyRunner:
         header = make_run_header(self.cfg, time.time(), run=run.name, kind="survey",
                                  survey=to_dict(run.survey), **self.run_meta())
         self.recorder.open(run.run_dir, header)
+        # Old runs beyond the configured limits go now, before this one fills the disk (off the event loop).
+        pruned = await asyncio.to_thread(prune_runs, Path(self.cfg.runs_dir), self.cfg.retention, {run.name})
+        if pruned:
+            self.emit(f"retention: deleted {len(pruned)} old runs ({', '.join(r.name for r in pruned)})")
         await self._beating(self._wait_fusion(), beat)
         if run.abort_reason is None:
             run.state = "running"
@@ -244,16 +249,27 @@ class SurveyRunner:
             run.state = "aborted" if run.abort_reason else "done"
             return
         result = await self._beating(self._reconstruct(run.bscans), beat)
+        await self._write_outputs(run, result, beat)
+        run.pipes = len(result.reconstruction.pipes)
+        run.state = "aborted" if run.abort_reason else "done"
+        self.emit(f"survey done {run.name} pipes {run.pipes}")
+
+    async def _write_outputs(self, run: SurveyRun, result: SurveyResult, beat: Callable[[], None]) -> None:
+        """The run directory's results, written by the inference worker (or a thread without one); a picture per
+        line and the exports take seconds, so the survey task's watchdog is fed meanwhile (a restart would lose
+        the results)."""
         meta = {"run": run.name, "frame": "site: x forward along the survey lines, y left, z up; metres",
                 "source": "gprbot run", "config": to_dict(self.cfg), **self.run_meta()}
         x0, y0 = run.survey.start_xy_m
         extent = (x0 - 0.2, x0 + run.survey.length_m + 0.2, y0 - 0.2,
                   y0 + (run.survey.lines - 1) * run.survey.spacing_m + 0.2)
-        await asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent, self.truth_axes,
-                                raw_lines=run.bscans)
-        run.pipes = len(result.reconstruction.pipes)
-        run.state = "aborted" if run.abort_reason else "done"
-        self.emit(f"survey done {run.name} pipes {run.pipes}")
+        if self.worker is not None:  # the worker process: matplotlib holds the GIL for seconds per picture
+            writing: Awaitable[Any] = self.worker.write_outputs(run.run_dir, result, meta, extent, self.truth_axes,
+                                                                run.bscans)
+        else:
+            writing = asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent, self.truth_axes,
+                                        raw_lines=run.bscans)
+        await self._beating(writing, beat)
 
     async def _drive(self, run: SurveyRun, segment: Segment, beat: Callable[[], None]) -> None:
         """Drive one segment for its planned duration (pauses excluded)."""

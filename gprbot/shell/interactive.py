@@ -31,6 +31,8 @@ def add_shell_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments of `gprbot shell`."""
     parser.add_argument("address", metavar="HOST[:PORT]", help="the robot (port 7878 by default)")
     parser.add_argument("--token-file", type=Path, help="file holding the shell token (mode 0600)")
+    parser.add_argument("-c", "--command", action="append", metavar="CMD",
+                        help="run CMD (repeatable, in order) and exit: 0 if every reply is ok, 1 at the first error")
 
 
 def add_pull_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +47,8 @@ def run_shell(args: argparse.Namespace) -> int:
     """Run the interactive shell until `quit`, end of input or the robot hanging up."""
     host, port = parse_address(args.address)
     token = load_token(args.token_file) if args.token_file else None
+    if getattr(args, "command", None):
+        return asyncio.run(_scripted(host, port, token, args.command))
     return asyncio.run(_interactive(host, port, token))
 
 
@@ -77,7 +81,7 @@ def _guarded(run: Callable[[argparse.Namespace], int], args: argparse.Namespace)
         return int(run(args))
     except GprbotError as exc:
         print(f"gprbot: error: {exc}", file=sys.stderr)
-        return 2
+        return 1
     except KeyboardInterrupt:
         return 130
 
@@ -99,7 +103,28 @@ def print_reply(reply: ServerReply) -> None:
     print(f"ok {reply.text}".rstrip() if reply.ok else f"error {reply.code} {reply.text}")
 
 
+async def _scripted(host: str, port: int, token: str | None, commands: Sequence[str]) -> int:
+    """`gprbot shell -c CMD ...`: each command's reply printed; exit 1 at the first error reply, else 0."""
+    async with ShellConnection(host, port, on_event=print_event) as conn:
+        if token is not None:
+            await conn.authenticate(token)
+        for line in commands:
+            try:
+                if line.split()[:1] == ["pull"]:
+                    await _pull_here(conn, line)
+                    continue
+                reply = await conn.request(line)
+            except ShellCommandError as exc:
+                reply = exc.reply
+            print_reply(reply)
+            if not reply.ok:
+                return 1
+    return 0
+
+
 async def _interactive(host: str, port: int, token: str | None) -> int:
+    """The prompt; like sh, the exit status is that of the last command (1 if its reply was an error)."""
+    status = 0
     async with ShellConnection(host, port, on_event=print_event) as conn:
         if token is not None:
             await conn.authenticate(token)
@@ -116,15 +141,18 @@ async def _interactive(host: str, port: int, token: str | None) -> int:
                 continue
             if words[0] in ("quit", "exit"):
                 break
+            status = 0
             try:
                 if words[0] == "pull":
                     await _pull_here(conn, line)
-                else:
-                    print_reply(await conn.request(line))
+                    continue
+                reply = await conn.request(line)
             except ShellCommandError as exc:
-                print_reply(exc.reply)
+                reply = exc.reply
+            print_reply(reply)
+            status = 0 if reply.ok else 1
     _save_history()
-    return 0
+    return status
 
 
 async def _pull_here(conn: ShellConnection, line: str) -> None:
