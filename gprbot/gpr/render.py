@@ -189,7 +189,8 @@ def write_cross_section_png(
     for d in section.detections:
         px = float(axis.of(d.x_m))
         ax.plot([px], [d.depth_m], marker="+", markersize=12, markeredgewidth=2, color=YELLOW)
-        ax.annotate(f"Ø {d.radius_m * 200:.1f} cm, cover {d.depth_m - d.radius_m:.2f} m", (px, d.depth_m),
+        size = f"Ø {d.radius_m * 200:.1f} cm" if d.radius_m > 0 else "Ø not measured"  # the interpreter's 0
+        ax.annotate(f"{size}, cover {d.depth_m - d.radius_m:.2f} m", (px, d.depth_m),
                     xytext=(6, -10), textcoords="offset points", color=YELLOW, fontsize=8,
                     bbox={"boxstyle": "round,pad=0.15", "fc": "black", "alpha": 0.6, "lw": 0})
     for r in section.rebars:
