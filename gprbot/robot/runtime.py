@@ -37,6 +37,7 @@ from gprbot.shell.server import SerialShell, ShellServer
 
 if TYPE_CHECKING:
     from gprbot.daemon import Supervisor
+    from gprbot.web.server import WebConsole
 
 log = logging.getLogger(__name__)
 CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
@@ -75,6 +76,7 @@ class RobotRuntime:
         self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
         self.token_file = token_file
         self.shell: ShellServer | None = None
+        self.web: WebConsole | None = None
         self.motors: MotorDriver | None = None
         self.gpr: GprDriver | None = None
         self.realsense: RealsenseDriver | None = None
@@ -140,6 +142,8 @@ class RobotRuntime:
             TaskSpec("recorder", self.recorder.run, watchdog_s=5.0, restart="always"),
             TaskSpec("shell.tcp", self._run_shell, watchdog_s=None, restart="always"),
         ]
+        if self.cfg.web.enabled:
+            tasks.append(TaskSpec("web", self._run_web, watchdog_s=5.0, restart="always", critical=False))
         if self.cfg.shell.serial_console:
             tasks.append(TaskSpec("shell.serial", self._run_serial_shell, watchdog_s=None, restart="always"))
         if self.sim is not None:
@@ -252,6 +256,18 @@ class RobotRuntime:
             with contextlib.suppress(TimeoutError):  # a client that stopped reading must not hold us up
                 async with asyncio.timeout(2.0):
                     await server.close()
+
+    async def _run_web(self, beat: Callable[[], None]) -> None:
+        from gprbot.web.server import WebConsole
+
+        console = WebConsole(self, token_file=self.token_file)
+        await console.start()
+        self.web = console
+        try:
+            await console.run(beat)
+        finally:
+            self.web = None
+            await console.close()
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
         from gprbot.robot.handler import RobotHandler

@@ -1,0 +1,467 @@
+"""The operator's web console: aiohttp on the daemon's event loop, one task of the supervisor's table.
+
+Security is the shell's: loopback needs no token; any other bind needs the shell's token file, given
+once on the login form, after which the browser holds a session cookie (HttpOnly, SameSite=Strict).
+Commands are the shell's own (parsed by its grammar, executed by the same RobotHandler, under the
+same per-client rate and client-count limits); each state-changing request carries the session's
+CSRF token in a header, and WebSockets are accepted only from the console's own origin. The e-stop,
+like the shell's, needs no login: it is executed the moment it is read, ahead of everything queued.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import html
+import json
+import logging
+import re
+import shlex
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from aiohttp import WSMsgType, web
+
+from gprbot.errors import ConfigError, GprbotError
+from gprbot.shell import runfiles
+from gprbot.shell.auth import load_token, token_matches
+from gprbot.shell.commands import (
+    CommandError,
+    Empty,
+    ErrorCode,
+    Estop,
+    Jog,
+    Pull,
+    Reset,
+    Status,
+    Stop,
+    SurveyControl,
+    SurveyStart,
+    parse_command,
+)
+from gprbot.shell.handler import SessionInfo
+from gprbot.shell.protocol import Reply
+from gprbot.shell.server import is_loopback
+from gprbot.shell.session import SessionLimits
+from gprbot.web.live import LiveFeed
+from gprbot.web.results import run_document
+from gprbot.web.sessions import COOKIE_NAME, CSRF_HEADER, LoginThrottle, SessionStore, WebSession, csrf_matches
+
+if TYPE_CHECKING:
+    from gprbot.robot.runtime import RobotRuntime
+
+log = logging.getLogger(__name__)
+STATIC_DIR = Path(__file__).parent / "static"
+ROBOT_COMMANDS = (Status, Jog, Stop, Reset, SurveyStart, SurveyControl)
+HANDLER_TIMEOUT_S = SessionLimits().handler_timeout_s
+LOGIN_LOCKOUT_S = 30.0
+CLIENT_QUEUE = 256  # messages waiting for one browser; a browser this far behind is dropped
+_HTTP_STATUS = {None: 200, ErrorCode.BAD_COMMAND: 400, ErrorCode.BAD_ARGUMENT: 400, ErrorCode.BUSY: 409,
+                ErrorCode.ESTOPPED: 409, ErrorCode.NOT_FOUND: 404, ErrorCode.UNAUTHORIZED: 401,
+                ErrorCode.TOO_LONG: 400, ErrorCode.RATE_LIMITED: 429, ErrorCode.INTERNAL: 500}
+_CONSOLE_CSP = ("default-src 'self'; img-src 'self' data: blob:; style-src 'self' 'unsafe-inline'; "
+                "script-src 'self'; connect-src 'self'; frame-ancestors 'none'; form-action 'self'")
+# report.html and other run files: an opaque origin (no cookies, no API), inline scripts for the report
+_RUN_FILE_CSP = ("sandbox allow-scripts; default-src 'none'; img-src data: blob:; style-src 'unsafe-inline'; "
+                 "script-src 'unsafe-inline' blob:")
+
+
+def reply_record(reply: Reply) -> dict[str, Any]:
+    """A shell Reply as JSON for the page."""
+    return {"ok": reply.ok, "code": str(reply.code) if reply.code else None, "text": reply.text,
+            "body": list(reply.body)}
+
+
+class _Browser:
+    """One connected WebSocket: its session and a bounded queue drained by its own sender task."""
+
+    def __init__(self, ws: web.WebSocketResponse, session: WebSession, backlog: int = 0) -> None:
+        self.ws, self.session = ws, session
+        self.queue: asyncio.Queue[str] = asyncio.Queue(maxsize=CLIENT_QUEUE + backlog)
+        self.sender = asyncio.create_task(self._send_loop(), name=f"web-send-{session.info.id}")
+
+    def offer(self, text: str) -> bool:
+        """Queue a message; False if the browser is too far behind."""
+        try:
+            self.queue.put_nowait(text)
+        except asyncio.QueueFull:
+            return False
+        return True
+
+    async def _send_loop(self) -> None:
+        with contextlib.suppress(ConnectionError, RuntimeError):
+            while True:
+                await self.ws.send_str(await self.queue.get())
+
+
+class WebConsole:
+    """The console's HTTP and WebSocket server and its live feed."""
+
+    def __init__(self, runtime: RobotRuntime, *, token_file: str | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        from gprbot.robot.handler import RobotHandler
+
+        cfg = runtime.cfg
+        self.rt, self.web_cfg, self._clock = runtime, cfg.web, clock
+        self.host, self.port = cfg.web.host, cfg.web.port
+        self.handler = RobotHandler(runtime)
+        self.sessions = SessionStore(cfg.web.session_ttl_s, cfg.shell.rate_per_s, clock)
+        self.throttle = LoginThrottle(SessionLimits().max_auth_failures, LOGIN_LOCKOUT_S, clock)
+        self.live = LiveFeed(runtime)
+        self.max_clients = cfg.shell.max_clients
+        self._token_file = token_file if token_file is not None else cfg.shell.token_file
+        self._token: str | None = None
+        self._browsers: set[_Browser] = set()
+        self._runner: web.AppRunner | None = None
+        self._jogger: int | None = None  # the session whose jog is running
+        self._unsubscribe: Callable[[], None] | None = None
+        self._closing: set[asyncio.Task[Any]] = set()
+        self.ticks = 0
+
+    @property
+    def url(self) -> str:
+        """Where an operator points the browser."""
+        host = "127.0.0.1" if self.host in ("", "0.0.0.0", "::") else self.host
+        return f"http://{host}:{self.port}/"
+
+    @property
+    def browser_count(self) -> int:
+        """WebSockets connected now."""
+        return len(self._browsers)
+
+    # ----- lifecycle ----------------------------------------------------------------------------
+    async def start(self) -> None:
+        """Load the token (required beyond loopback), bind, serve; `.port` is then the bound port."""
+        if self._token_file is not None:
+            self._token = load_token(self._token_file)
+        elif not is_loopback(self.host):
+            raise ConfigError(f"the web console would listen on {self.host!r} without a token; set "
+                              "shell.token_file (mode 0600) or web.host: 127.0.0.1")
+        app = web.Application(middlewares=[self._headers], client_max_size=64 * 1024)
+        app.add_routes([
+            web.get("/", self._index), web.get("/login", self._login_page), web.post("/login", self._login),
+            web.post("/logout", self._logout), web.get("/ws", self._websocket),
+            web.post("/api/command", self._command), web.post("/api/estop", self._estop),
+            web.get("/api/runs", self._runs), web.get("/api/runs/{run}", self._run),
+            web.get("/runs/{run}/{name:.+}", self._run_file),
+        ])
+        app.router.add_static("/static/", STATIC_DIR, follow_symlinks=False)
+        runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=1.0)  # no request lines
+        await runner.setup()
+        try:
+            await web.TCPSite(runner, self.host, self.port).start()
+        except OSError as exc:
+            await runner.cleanup()
+            raise ConfigError(f"cannot listen on {self.host}:{self.port} for the web console: {exc}; "
+                              "is another gprbot running? (web.port)") from exc
+        self._runner = runner
+        self.port = int(runner.addresses[0][1])
+        self._unsubscribe = self.rt.events.subscribe(self._event)
+        log.info("web console on %s (%s)", self.url, "login with the shell token" if self._token else "no token")
+
+    async def close(self) -> None:
+        """Close every browser and stop serving."""
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+            self._unsubscribe = None
+        for browser in list(self._browsers):
+            browser.sender.cancel()
+            with contextlib.suppress(Exception):
+                await browser.ws.close()
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None
+
+    async def run(self, beat: Callable[[], None]) -> None:
+        """The console's task: push status and new survey data to every browser, status_hz times a second."""
+        period = 1.0 / self.web_cfg.status_hz
+        while True:
+            beat()
+            self.tick()
+            await asyncio.sleep(period)
+
+    def _event(self, text: str) -> None:
+        """A daemon event line (`line 3 end`, `estop`, ...) to every browser's log."""
+        self._broadcast([json.dumps({"type": "event", "text": text})])
+
+    def _broadcast(self, messages: list[str]) -> None:
+        for browser in list(self._browsers):
+            for text in messages:
+                if not browser.offer(text):
+                    log.warning("web: %s is not reading; dropping it", browser.session.info.peer)
+                    self._drop(browser)
+                    break
+
+    def _drop(self, browser: _Browser) -> None:
+        self._browsers.discard(browser)
+        closing = asyncio.create_task(browser.ws.close())
+        self._closing.add(closing)
+        closing.add_done_callback(self._closing.discard)
+
+    def tick(self) -> None:
+        """One push: what the survey produced since the last tick, then a status snapshot."""
+        self.ticks += 1
+        per_tick = max(1, round(self.web_cfg.max_traces_per_s / self.web_cfg.status_hz))
+        messages = [json.dumps(m) for m in self.live.poll(per_tick)]
+        messages.append(json.dumps(self.live.status(len(self._browsers))))
+        self._broadcast(messages)
+
+    # ----- commands (shared by the WebSocket and POST /api/command) -----------------------------
+    async def execute(self, session: WebSession, line: str) -> Reply:
+        """One shell command line from a logged-in browser: parsed, limited and run like the shell's."""
+        try:
+            command = parse_command(line)
+        except CommandError as exc:
+            return Reply.failure(exc.code, exc.text)
+        if isinstance(command, Estop):
+            return await self.estop(session.info)
+        if not session.rate.allow(self._clock()):
+            limit = self.sessions.rate_per_s
+            return Reply.failure(ErrorCode.RATE_LIMITED, f"more than {limit:g} commands/s; slow down")
+        if isinstance(command, Empty):
+            return Reply.success()
+        if not isinstance(command, ROBOT_COMMANDS):
+            return Reply.failure(ErrorCode.BAD_COMMAND, f"{line.split()[0]!r} belongs to the line shell; "
+                                 "the console has runs and downloads on its Results page")
+        try:
+            reply = await asyncio.wait_for(self.handler.handle(command, session.info), HANDLER_TIMEOUT_S)
+        except TimeoutError:
+            return Reply.failure(ErrorCode.INTERNAL, f"the robot did not answer within {HANDLER_TIMEOUT_S:g} s")
+        except GprbotError as exc:
+            return Reply.failure(ErrorCode.INTERNAL, str(exc))
+        if isinstance(command, Jog) and reply.ok:
+            self._jogger = session.info.id
+        return reply
+
+    async def estop(self, info: SessionInfo) -> Reply:
+        """The shell's e-stop path: wheels commanded to zero now, latched until `reset`."""
+        log.warning("web: estop from %s", info.peer)
+        try:
+            return await asyncio.wait_for(self.handler.estop(info), HANDLER_TIMEOUT_S)
+        except Exception as exc:
+            log.critical("web: estop handler failed", exc_info=True)
+            return Reply.failure(ErrorCode.INTERNAL, f"estop failed: {exc!r}; use the hardware e-stop")
+
+    def _release_jog(self, session: WebSession) -> None:
+        """A browser that jogged went away: its jog ends now, not at the dead-man timeout."""
+        if self._jogger == session.info.id and self.rt.jog.active:
+            self.rt.jog.stop(self._clock())
+            log.info("web: jog of session %d stopped (its socket closed)", session.info.id)
+
+    # ----- helpers ------------------------------------------------------------------------------
+    @web.middleware
+    async def _headers(self, request: web.Request,
+                       handler: Callable[[web.Request], Awaitable[web.StreamResponse]]) -> web.StreamResponse:
+        response = await handler(request)
+        is_run_file = request.path.startswith("/runs/")
+        response.headers.setdefault("Content-Security-Policy", _RUN_FILE_CSP if is_run_file else _CONSOLE_CSP)
+        response.headers["X-Content-Type-Options"] = "nosniff"
+        response.headers["Referrer-Policy"] = "no-referrer"
+        if not is_run_file:
+            response.headers["X-Frame-Options"] = "DENY"
+        if request.path.startswith(("/api/", "/login")) or request.path == "/":
+            response.headers["Cache-Control"] = "no-store"
+        return response
+
+    def _session(self, request: web.Request) -> WebSession | None:
+        return self.sessions.get(request.cookies.get(COOKIE_NAME))
+
+    @staticmethod
+    def _same_origin(request: web.Request, *, required: bool) -> bool:
+        origin = request.headers.get("Origin")
+        if origin is None:
+            return not required  # curl and other non-browser clients send none; browsers always do on POST/WS
+        return origin == f"{request.scheme}://{request.host}"
+
+    def _peer(self, request: web.Request) -> str:
+        return request.remote or "?"
+
+    def _authorised(self, request: web.Request, *, unsafe: bool) -> WebSession:
+        """The request's session; raises 401 without one, 403 when a state change lacks CSRF proof."""
+        session = self._session(request)
+        if session is None:
+            raise web.HTTPUnauthorized(text="log in first (GET /login)", content_type="text/plain")
+        if unsafe and not (self._same_origin(request, required=False)
+                           and csrf_matches(session, request.headers.get(CSRF_HEADER))):
+            raise web.HTTPForbidden(text=f"missing or wrong {CSRF_HEADER} header; reload the console",
+                                    content_type="text/plain")
+        return session
+
+    def _set_cookie(self, response: web.StreamResponse, session: WebSession) -> None:
+        response.set_cookie(COOKIE_NAME, session.key, max_age=int(self.web_cfg.session_ttl_s), path="/",
+                            httponly=True, samesite="Strict")
+
+    def _page(self, name: str, **values: str) -> str:
+        text = (STATIC_DIR / name).read_text(encoding="utf-8")
+        return re.sub(r"\{\{(\w+)\}\}", lambda m: html.escape(values[m.group(1)]), text)
+
+    # ----- pages and login ----------------------------------------------------------------------
+    async def _index(self, request: web.Request) -> web.StreamResponse:
+        session = self._session(request)
+        fresh = session is None and self._token is None
+        if fresh:  # loopback without a token: like the shell, no login
+            session = self.sessions.create(self._peer(request))
+        if session is None:
+            raise web.HTTPSeeOther("/login")
+        response = web.Response(text=self._page("index.html", csrf=session.csrf), content_type="text/html")
+        if fresh:
+            self._set_cookie(response, session)
+        return response
+
+    async def _login_page(self, request: web.Request, message: str = "", status: int = 200) -> web.StreamResponse:
+        if self._token is None:
+            raise web.HTTPSeeOther("/")
+        html = self._page("login.html", message=message)
+        return web.Response(text=html, content_type="text/html", status=status)
+
+    async def _login(self, request: web.Request) -> web.StreamResponse:
+        peer = self._peer(request)
+        if self._token is None:
+            raise web.HTTPSeeOther("/")
+        if not self._same_origin(request, required=False):
+            raise web.HTTPForbidden(text="login from another site refused", content_type="text/plain")
+        wait_s = self.throttle.locked_for_s(peer)
+        if wait_s > 0:
+            return await self._login_page(request, f"Too many wrong tokens; wait {wait_s:.0f} s.", 429)
+        form = await request.post()
+        given = form.get("token")
+        if not isinstance(given, str) or not token_matches(self._token, given.strip()):
+            count = self.throttle.failed(peer)
+            log.warning("web: bad token from %s (%d)", peer, count)
+            return await self._login_page(request, "Wrong token.", 401)
+        self.throttle.succeeded(peer)
+        session = self.sessions.create(peer)
+        log.info("web: %s logged in (session %d)", peer, session.info.id)
+        response = web.HTTPSeeOther("/")
+        self._set_cookie(response, session)
+        raise response
+
+    async def _logout(self, request: web.Request) -> web.StreamResponse:
+        session = self._authorised(request, unsafe=True)
+        self.sessions.drop(session.key)
+        response = web.json_response({"ok": True})
+        response.del_cookie(COOKIE_NAME, path="/")
+        return response
+
+    # ----- the API ------------------------------------------------------------------------------
+    async def _command(self, request: web.Request) -> web.StreamResponse:
+        session = self._authorised(request, unsafe=True)
+        try:
+            line = (await request.json())["line"]
+            if not isinstance(line, str):
+                raise TypeError
+        except (ValueError, KeyError, TypeError):
+            return web.json_response({"ok": False, "code": "bad_command", "text": 'send {"line": "COMMAND"}'},
+                                     status=400)
+        reply = await self.execute(session, line)
+        return web.json_response(reply_record(reply), status=_HTTP_STATUS.get(reply.code, 500))
+
+    async def _estop(self, request: web.Request) -> web.StreamResponse:
+        if not self._same_origin(request, required=False):
+            raise web.HTTPForbidden(text="e-stop from another site's page refused", content_type="text/plain")
+        session = self._session(request)
+        info = session.info if session else SessionInfo(0, "web", self._peer(request), authenticated=False)
+        reply = await self.estop(info)
+        return web.json_response(reply_record(reply), status=200 if reply.ok else 500)
+
+    async def _runs(self, request: web.Request) -> web.StreamResponse:
+        self._authorised(request, unsafe=False)
+        names = await asyncio.to_thread(runfiles.list_runs, Path(self.rt.cfg.runs_dir))
+        return web.json_response({"runs": names})
+
+    async def _run(self, request: web.Request) -> web.StreamResponse:
+        self._authorised(request, unsafe=False)
+        run = self._checked(request.match_info["run"], "summary.json").run
+        try:
+            document = await asyncio.to_thread(run_document, Path(self.rt.cfg.runs_dir), run)
+        except CommandError as exc:
+            raise web.HTTPNotFound(text=exc.text, content_type="text/plain") from None
+        return web.json_response(document)
+
+    @staticmethod
+    def _checked(run: str, name: str) -> Pull:
+        """The shell's own validation of a run and file name (no '..', no absolute paths)."""
+        try:
+            command = parse_command(f"pull {shlex.quote(run)} {shlex.quote(name)}")
+        except CommandError as exc:
+            raise web.HTTPBadRequest(text=exc.text, content_type="text/plain") from None
+        assert isinstance(command, Pull)
+        return command
+
+    async def _run_file(self, request: web.Request) -> web.StreamResponse:
+        self._authorised(request, unsafe=False)
+        pull = self._checked(request.match_info["run"], request.match_info["name"])
+        try:
+            opened = await asyncio.to_thread(runfiles.open_run_file, Path(self.rt.cfg.runs_dir), pull.run, pull.file)
+        except CommandError as exc:
+            raise web.HTTPNotFound(text=exc.text, content_type="text/plain") from None
+        opened.handle.close()
+        response = web.FileResponse(opened.path)
+        if request.query.get("download"):
+            response.headers["Content-Disposition"] = f'attachment; filename="{opened.path.name}"'
+        response.headers["X-Content-SHA256"] = opened.sha256
+        return response
+
+    # ----- the live socket ----------------------------------------------------------------------
+    async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        session = self._session(request)
+        if session is None:
+            raise web.HTTPUnauthorized(text="log in first (GET /login)", content_type="text/plain")
+        if not self._same_origin(request, required=True):
+            raise web.HTTPForbidden(text="WebSocket from another origin refused", content_type="text/plain")
+        if len(self._browsers) >= self.max_clients:
+            raise web.HTTPServiceUnavailable(text=f"too many clients (max {self.max_clients}); try again later",
+                                             content_type="text/plain")
+        ws = web.WebSocketResponse(heartbeat=5.0, max_msg_size=4096)
+        await ws.prepare(request)
+        run = self.rt.survey.current
+        current_line = run.line if run is not None else None
+        backlog = [m for m in self.live.backlog if m["type"] != "traces" or m["line"] == current_line]
+        browser = _Browser(ws, session, len(backlog))
+        self._browsers.add(browser)
+        for first in [self.live.hello(), *backlog, self.live.status(len(self._browsers))]:
+            browser.offer(json.dumps(first))
+        commands: asyncio.Queue[tuple[Any, str] | None] = asyncio.Queue(maxsize=SessionLimits().max_pending)
+        worker = asyncio.create_task(self._command_worker(browser, commands))
+        log.info("web: %s connected (session %d)", self._peer(request), session.info.id)
+        try:
+            async for frame in ws:
+                if frame.type != WSMsgType.TEXT:
+                    continue
+                try:
+                    request_id, line = self._parse_socket_command(frame.data)
+                except ValueError as exc:
+                    browser.offer(json.dumps({"type": "reply", "id": None, "ok": False, "code": "bad_command",
+                                              "text": str(exc), "body": []}))
+                    continue
+                if line.strip().lower() == "estop":  # the fast path: now, ahead of anything queued
+                    reply = await self.estop(session.info)
+                    browser.offer(json.dumps({"type": "reply", "id": request_id, **reply_record(reply)}))
+                else:
+                    await commands.put((request_id, line))
+        finally:
+            self._browsers.discard(browser)
+            self._release_jog(session)
+            worker.cancel()
+            browser.sender.cancel()
+            log.info("web: session %d disconnected", session.info.id)
+        return ws
+
+    @staticmethod
+    def _parse_socket_command(text: str) -> tuple[Any, str]:
+        try:
+            data = json.loads(text)
+            line = data["cmd"]
+        except (ValueError, KeyError, TypeError):
+            raise ValueError('send {"id": N, "cmd": "COMMAND"}') from None
+        if not isinstance(line, str):
+            raise ValueError("cmd must be a string")
+        return data.get("id"), line
+
+    async def _command_worker(self, browser: _Browser, commands: asyncio.Queue[tuple[Any, str] | None]) -> None:
+        while (item := await commands.get()) is not None:
+            request_id, line = item
+            reply = await self.execute(browser.session, line)
+            browser.offer(json.dumps({"type": "reply", "id": request_id, **reply_record(reply)}))
