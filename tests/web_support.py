@@ -31,7 +31,8 @@ def browser_missing() -> str | None:
     except ImportError:
         return "selenium is not installed (pip install -e '.[dev]')"
     if CHROMIUM is None or CHROMEDRIVER is None:
-        return "headless Chromium is absent: apt-get install chromium chromium-driver (scripts/bootstrap.sh does, as root)"
+        return ("headless Chromium is absent: apt-get install chromium chromium-driver "
+                "(scripts/bootstrap.sh does, as root)")
     return None
 
 
@@ -134,7 +135,12 @@ def wait_for(check: Callable[[], Any], timeout_s: float, what: str, poll_s: floa
     """Poll `check` until it returns something truthy; its value (AssertionError naming `what` on timeout)."""
     deadline = time.monotonic() + timeout_s
     while True:
-        value = check()
+        try:
+            value = check()
+        except Exception as exc:  # the page is navigating: an element not there yet, or gone stale
+            if type(exc).__name__ not in ("NoSuchElementException", "StaleElementReferenceException"):
+                raise
+            value = None
         if value:
             return value
         if time.monotonic() > deadline:

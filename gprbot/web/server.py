@@ -116,6 +116,7 @@ class WebConsole:
         self._browsers: set[_Browser] = set()
         self._runner: web.AppRunner | None = None
         self._jogger: int | None = None  # the session whose jog is running
+        self.last_estop_t: float | None = None  # when the last e-stop reached the console (clock())
         self._unsubscribe: Callable[[], None] | None = None
         self._closing: set[asyncio.Task[Any]] = set()
         self.ticks = 0
@@ -237,6 +238,7 @@ class WebConsole:
 
     async def estop(self, info: SessionInfo) -> Reply:
         """The shell's e-stop path: wheels commanded to zero now, latched until `reset`."""
+        self.last_estop_t = self._clock()
         log.warning("web: estop from %s", info.peer)
         try:
             return await asyncio.wait_for(self.handler.estop(info), HANDLER_TIMEOUT_S)
@@ -258,7 +260,8 @@ class WebConsole:
         is_run_file = request.path.startswith("/runs/")
         response.headers.setdefault("Content-Security-Policy", _RUN_FILE_CSP if is_run_file else _CONSOLE_CSP)
         response.headers["X-Content-Type-Options"] = "nosniff"
-        response.headers["Referrer-Policy"] = "no-referrer"
+        # not "no-referrer": with it Chromium sends `Origin: null` on same-origin form posts (the login)
+        response.headers["Referrer-Policy"] = "same-origin"
         if not is_run_file:
             response.headers["X-Frame-Options"] = "DENY"
         if request.path.startswith(("/api/", "/login")) or request.path == "/":

@@ -268,5 +268,6 @@
     if (tab.dataset.tab === "results") refreshRuns();
   });
 
+  state.command = command;  // the page's own command path, for the browser tests
   drawMap(); drawRadargram(); connect(); refreshRuns();
 })();

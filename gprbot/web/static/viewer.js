@@ -48,6 +48,12 @@
     const outline = new THREE.BufferGeometry().setFromPoints([[a[0], a[2]], [a[1], a[2]], [a[1], a[3]], [a[0], a[3]]]
       .map(([x, y]) => new THREE.Vector3(x, y, 0)));
     scene.add(new THREE.LineLoop(outline, new THREE.LineBasicMaterial({ color: 0x8899aa })));
+    // the volume under the surveyed area, dimmer, so that "below the surface" reads at a glance
+    const box = [];
+    for (const [x, y] of [[a[0], a[2]], [a[1], a[2]], [a[1], a[3]], [a[0], a[3]]]) box.push(new THREE.Vector3(x, y, 0), new THREE.Vector3(x, y, zMin));
+    [[a[0], a[2], a[1], a[2]], [a[1], a[2], a[1], a[3]], [a[1], a[3], a[0], a[3]], [a[0], a[3], a[0], a[2]]]
+      .forEach(([x0, y0, x1, y1]) => box.push(new THREE.Vector3(x0, y0, zMin), new THREE.Vector3(x1, y1, zMin)));
+    scene.add(new THREE.LineSegments(new THREE.BufferGeometry().setFromPoints(box), new THREE.LineBasicMaterial({ color: 0x3a4550 })));
     const span = Math.max(a[1] - a[0], a[3] - a[2], -zMin), textH = 0.035 * span;
     const ruler = [], step = 0.05, x = a[0] - 0.05, y = a[2] - 0.05;
     ruler.push(new THREE.Vector3(x, y, 0), new THREE.Vector3(x, y, zMin));
@@ -57,7 +63,7 @@
     }
     scene.add(new THREE.LineSegments(new THREE.BufferGeometry().setFromPoints(ruler), new THREE.LineBasicMaterial({ color: 0xcfd6dd })));
     const centre = new THREE.Vector3((a[0] + a[1]) / 2, (a[2] + a[3]) / 2, zMin / 2);
-    const radius = span * 1.7;
+    const radius = span * 1.45;
     const camera = new THREE.PerspectiveCamera(40, canvas.width / canvas.height, 0.01, 100);
     camera.up.set(0, 0, 1);
     const view = { az: -Math.PI / 2 - 0.6, el: 0.55, r: radius, target: centre };
