@@ -58,7 +58,8 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
     scene = load_scene(cfg.sim.scene)  # a bad scene is one clear error before any daemon starts
     dest = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("pulled-%Y%m%d-%H%M%S")
     print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)")
-    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", flush=True)))
+    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", flush=True),
+                                          on_console=lambda url: print(f"follow it live: {url}", flush=True)))
     print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}")
     # The operator's copy of pipes.json, judged against the simulated scene's truth.
     found = read_pipes_json(dest / "pipes.json")

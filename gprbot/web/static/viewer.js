@@ -63,7 +63,7 @@
     }
     scene.add(new THREE.LineSegments(new THREE.BufferGeometry().setFromPoints(ruler), new THREE.LineBasicMaterial({ color: 0xcfd6dd })));
     const centre = new THREE.Vector3((a[0] + a[1]) / 2, (a[2] + a[3]) / 2, zMin / 2);
-    const radius = span * 1.45;
+    const radius = span * 2.0;
     const camera = new THREE.PerspectiveCamera(40, canvas.width / canvas.height, 0.01, 100);
     camera.up.set(0, 0, 1);
     const view = { az: -Math.PI / 2 - 0.6, el: 0.55, r: radius, target: centre };
