@@ -9,6 +9,9 @@ survey's wall time; (2) the whole process's CPU during the same survey with the 
 browser, minus a survey with the console disabled (noisy on a loaded machine: a cross-check).
 The shell's e-stop: jog → `estop` over a TCP shell connection → reply; the time from sending the line
 to every emulated wheel commanded to zero, and to the reply, `--estops` times per case.
+Three consoles are measured twice: as socket clients in another process (what the daemon serves to three
+browsers on tablets, the robot's case) and as three headless Chromiums on this same machine (whose
+rendering competes with the daemon for the two cores: pessimistic, not the robot's case).
 Run: `.venv/bin/python -m benchmarks.bench_web [--lines 3 --length 0.6 --speed 0.1 --estops 60]`.
 """
 
@@ -16,8 +19,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import dataclasses
 import functools
+import multiprocessing
 import tempfile
 import time
 from collections.abc import Awaitable, Callable
@@ -106,8 +111,8 @@ async def survey_cpu(cfg: Config, browsers: int) -> tuple[float, float, float, C
     rt, stop, task = await start_daemon(cfg)
     opened = await open_browsers(rt, browsers) if browsers else []
     if rt.web is not None:  # count every WebSocket send of the console's sender tasks
-        for browser in list(rt.web._browsers):
-            browser.ws.send_str = meter.wrap_async(browser.ws.send_str)  # type: ignore[method-assign]
+        for browser in list(rt.web.browsers):
+            browser.ws.send_str = meter.wrap_async(browser.ws.send_str)  # type: ignore[method-assign,assignment]
     await asyncio.sleep(1.0)
     meter.seconds, meter.calls = 0.0, 0
     run = rt.survey.start(cfg.survey)
@@ -126,10 +131,40 @@ async def survey_cpu(cfg: Config, browsers: int) -> tuple[float, float, float, C
     return wall, cpu, console_s, meter, run.state
 
 
-async def shell_estops(cfg: Config, browsers: int, count: int) -> tuple[list[float], list[float]]:
-    """(to every wheel commanded to zero, to the reply) in seconds, jog → estop → reset `count` times."""
+def socket_clients(url: str, count: int, stop: Any) -> None:
+    """In another process: `count` console clients (cookie, then the live socket) reading until `stop` is set."""
+    import aiohttp
+
+    async def one() -> None:
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as http:
+            async with http.get(url) as page:
+                await page.text()
+            async with http.ws_connect(url + "ws", origin=url.rstrip("/")) as ws:
+                while not stop.is_set():
+                    with contextlib.suppress(TimeoutError):
+                        await ws.receive(timeout=0.5)
+
+    async def main() -> None:
+        await asyncio.gather(*(one() for _ in range(count)))
+
+    asyncio.run(main())
+
+
+async def shell_estops(cfg: Config, browsers: int, count: int, kind: str = "chromium"
+                       ) -> tuple[list[float], list[float]]:
+    """(to every wheel commanded to zero, to the reply) in seconds, jog → estop → reset `count` times, with
+    `browsers` consoles open: headless Chromium on this machine, or socket clients in another process."""
     rt, stop, task = await start_daemon(cfg)
-    opened = await open_browsers(rt, browsers) if browsers else []
+    opened = await open_browsers(rt, browsers) if browsers and kind == "chromium" else []
+    clients = None
+    if browsers and kind == "sockets":
+        assert rt.web is not None
+        context = multiprocessing.get_context("spawn")
+        stop_clients = context.Event()
+        clients = context.Process(target=socket_clients, args=(rt.web.url, browsers, stop_clients))
+        clients.start()
+        while rt.web.browser_count < browsers:
+            await asyncio.sleep(0.05)
     reader, writer = await asyncio.open_connection("127.0.0.1", rt.shell_port)
     assert rt.sim is not None
     wheels = set(cfg.motors.wheel_map)
@@ -151,7 +186,7 @@ async def shell_estops(cfg: Config, browsers: int, count: int) -> tuple[list[flo
         reply = await ask("estop")
         replied = time.monotonic()
         assert reply.startswith("ok estop"), reply
-        zero = {}
+        zero: dict[tuple[int, int], float] = {}
         for event in list(rt.sim.motors.command_log):
             if event.t >= sent and event.counts_per_s == 0 and (event.address, event.channel) in wheels:
                 zero.setdefault((event.address, event.channel), event.t)
@@ -161,6 +196,9 @@ async def shell_estops(cfg: Config, browsers: int, count: int) -> tuple[list[flo
     writer.close()
     for browser in opened:
         await asyncio.to_thread(browser.quit)
+    if clients is not None:
+        stop_clients.set()
+        await asyncio.to_thread(clients.join, 10)
     stop.set()
     await task
     return to_wheels, to_reply
@@ -172,7 +210,20 @@ def ms(values: list[float]) -> str:
             if a.size else "no samples")
 
 
-async def bench(lines: int, length_m: float, speed_m_s: float, estops: int) -> None:
+async def print_survey_cpu(runs: str, lines: int, length_m: float, speed_m_s: float) -> None:
+    """The console's CPU while a survey streams to one browser (and the whole process's, with and without)."""
+    streamed = bench_config(runs, lines, length_m, speed_m_s, True)
+    wall1, cpu1, console_s, meter, state1 = await survey_cpu(streamed, 1)
+    wall0, cpu0, _, _, state0 = await survey_cpu(bench_config(runs, lines, length_m, speed_m_s, False), 0)
+    print(f"survey {lines} lines x {length_m} m at {speed_m_s} m/s ({state1}, {state0}):")
+    print(f"  console's own work with one browser: {console_s:.3f} s CPU over {wall1:.1f} s = "
+          f"{100 * console_s / wall1:.2f} % of one core ({meter.calls} pushes and sends)")
+    print(f"  whole process: {100 * cpu1 / wall1:.1f} % of a core with the console streaming to a browser, "
+          f"{100 * cpu0 / wall0:.1f} % with the console disabled: difference "
+          f"{100 * (cpu1 / wall1 - cpu0 / wall0):+.1f} % (includes noise of a loaded machine)")
+
+
+async def bench(lines: int, length_m: float, speed_m_s: float, estops: int, cpu: bool = True) -> None:
     missing = browser_missing()
     if missing:
         print(f"bench_web skipped: {missing}")
@@ -180,19 +231,13 @@ async def bench(lines: int, length_m: float, speed_m_s: float, estops: int) -> N
     with tempfile.TemporaryDirectory() as runs:
         print(f"machine: {machine_description()}")
         streamed = bench_config(runs, lines, length_m, speed_m_s, True)
-        wall1, cpu1, console_s, meter, state1 = await survey_cpu(streamed, 1)
-        wall0, cpu0, _, _, state0 = await survey_cpu(bench_config(runs, lines, length_m, speed_m_s, False), 0)
-        print(f"survey {lines} lines x {length_m} m at {speed_m_s} m/s ({state1}, {state0}):")
-        print(f"  console's own work with one browser: {console_s:.3f} s CPU over {wall1:.1f} s = "
-              f"{100 * console_s / wall1:.2f} % of one core ({meter.calls} pushes and sends)")
-        print(f"  whole process: {100 * cpu1 / wall1:.1f} % of a core with the console streaming to a browser, "
-              f"{100 * cpu0 / wall0:.1f} % with the console disabled: difference "
-              f"{100 * (cpu1 / wall1 - cpu0 / wall0):+.1f} % (includes noise of a loaded machine)")
-        cfg = bench_config(runs, lines, length_m, speed_m_s, True)
-        for browsers in (0, 3):
-            wheels, replies = await shell_estops(cfg, browsers, estops)
-            print(f"shell e-stop with {browsers} browsers connected: to wheels {ms(wheels)}")
-            print(f"{'':34s}to reply  {ms(replies)}")
+        if cpu:
+            await print_survey_cpu(runs, lines, length_m, speed_m_s)
+        for browsers, kind, what in ((0, "", "no console open"),
+                                     (3, "sockets", "3 consoles (socket clients in another process)"),
+                                     (3, "chromium", "3 headless Chromiums on this same machine")):
+            wheels, replies = await shell_estops(streamed, browsers, estops, kind)
+            print(f"shell e-stop, {what}:\n  to wheels {ms(wheels)}\n  to reply  {ms(replies)}")
         print(f"(p99 of {estops} samples is about their worst one: read it with the max)")
 
 
@@ -203,8 +248,9 @@ def main() -> None:
     parser.add_argument("--length", type=float, default=0.6)
     parser.add_argument("--speed", type=float, default=0.1)
     parser.add_argument("--estops", type=int, default=60)
+    parser.add_argument("--no-cpu", action="store_true", help="only the e-stop figures")
     args = parser.parse_args()
-    asyncio.run(bench(args.lines, args.length, args.speed, args.estops))
+    asyncio.run(bench(args.lines, args.length, args.speed, args.estops, cpu=not args.no_cpu))
 
 
 if __name__ == "__main__":

@@ -16,16 +16,14 @@ import html
 import json
 import logging
 import re
-import shlex
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from aiohttp import WSMsgType, web
+from aiohttp import web
 
 from gprbot.errors import ConfigError, GprbotError
-from gprbot.shell import runfiles
 from gprbot.shell.auth import load_token, token_matches
 from gprbot.shell.commands import (
     CommandError,
@@ -33,7 +31,6 @@ from gprbot.shell.commands import (
     ErrorCode,
     Estop,
     Jog,
-    Pull,
     Reset,
     Status,
     Stop,
@@ -46,8 +43,17 @@ from gprbot.shell.protocol import Reply
 from gprbot.shell.server import is_loopback
 from gprbot.shell.session import SessionLimits
 from gprbot.web.live import LiveFeed
-from gprbot.web.results import run_document
-from gprbot.web.sessions import COOKIE_NAME, CSRF_HEADER, LoginThrottle, SessionStore, WebSession, csrf_matches
+from gprbot.web.live_socket import Browser, reply_record, serve_socket
+from gprbot.web.run_routes import RunRoutes
+from gprbot.web.sessions import (
+    COOKIE_NAME,
+    CSRF_HEADER,
+    LoginThrottle,
+    SessionStore,
+    WebSession,
+    csrf_matches,
+    same_origin,
+)
 
 if TYPE_CHECKING:
     from gprbot.robot.runtime import RobotRuntime
@@ -57,7 +63,6 @@ STATIC_DIR = Path(__file__).parent / "static"
 ROBOT_COMMANDS = (Status, Jog, Stop, Reset, SurveyStart, SurveyControl)
 HANDLER_TIMEOUT_S = SessionLimits().handler_timeout_s
 LOGIN_LOCKOUT_S = 30.0
-CLIENT_QUEUE = 256  # messages waiting for one browser; a browser this far behind is dropped
 _HTTP_STATUS = {None: 200, ErrorCode.BAD_COMMAND: 400, ErrorCode.BAD_ARGUMENT: 400, ErrorCode.BUSY: 409,
                 ErrorCode.ESTOPPED: 409, ErrorCode.NOT_FOUND: 404, ErrorCode.UNAUTHORIZED: 401,
                 ErrorCode.TOO_LONG: 400, ErrorCode.RATE_LIMITED: 429, ErrorCode.INTERNAL: 500}
@@ -66,34 +71,6 @@ _CONSOLE_CSP = ("default-src 'self'; img-src 'self' data: blob:; style-src 'self
 # report.html and other run files: an opaque origin (no cookies, no API), inline scripts for the report
 _RUN_FILE_CSP = ("sandbox allow-scripts; default-src 'none'; img-src data: blob:; style-src 'unsafe-inline'; "
                  "script-src 'unsafe-inline' blob:")
-
-
-def reply_record(reply: Reply) -> dict[str, Any]:
-    """A shell Reply as JSON for the page."""
-    return {"ok": reply.ok, "code": str(reply.code) if reply.code else None, "text": reply.text,
-            "body": list(reply.body)}
-
-
-class _Browser:
-    """One connected WebSocket: its session and a bounded queue drained by its own sender task."""
-
-    def __init__(self, ws: web.WebSocketResponse, session: WebSession, backlog: int = 0) -> None:
-        self.ws, self.session = ws, session
-        self.queue: asyncio.Queue[str] = asyncio.Queue(maxsize=CLIENT_QUEUE + backlog)
-        self.sender = asyncio.create_task(self._send_loop(), name=f"web-send-{session.info.id}")
-
-    def offer(self, text: str) -> bool:
-        """Queue a message; False if the browser is too far behind."""
-        try:
-            self.queue.put_nowait(text)
-        except asyncio.QueueFull:
-            return False
-        return True
-
-    async def _send_loop(self) -> None:
-        with contextlib.suppress(ConnectionError, RuntimeError):
-            while True:
-                await self.ws.send_str(await self.queue.get())
 
 
 class WebConsole:
@@ -113,7 +90,7 @@ class WebConsole:
         self.max_clients = cfg.shell.max_clients
         self._token_file = token_file if token_file is not None else cfg.shell.token_file
         self._token: str | None = None
-        self._browsers: set[_Browser] = set()
+        self.browsers: set[Browser] = set()
         self._runner: web.AppRunner | None = None
         self._jogger: int | None = None  # the session whose jog is running
         self.last_estop_t: float | None = None  # when the last e-stop reached the console (clock())
@@ -130,7 +107,7 @@ class WebConsole:
     @property
     def browser_count(self) -> int:
         """WebSockets connected now."""
-        return len(self._browsers)
+        return len(self.browsers)
 
     # ----- lifecycle ----------------------------------------------------------------------------
     async def start(self) -> None:
@@ -143,10 +120,9 @@ class WebConsole:
         app = web.Application(middlewares=[self._headers], client_max_size=64 * 1024)
         app.add_routes([
             web.get("/", self._index), web.get("/login", self._login_page), web.post("/login", self._login),
-            web.post("/logout", self._logout), web.get("/ws", self._websocket),
+            web.post("/logout", self._logout), web.get("/ws", lambda request: serve_socket(self, request)),
             web.post("/api/command", self._command), web.post("/api/estop", self._estop),
-            web.get("/api/runs", self._runs), web.get("/api/runs/{run}", self._run),
-            web.get("/runs/{run}/{name:.+}", self._run_file),
+            *RunRoutes(Path(self.rt.cfg.runs_dir), lambda r: self._authorised(r, unsafe=False)).routes(),
         ])
         app.router.add_static("/static/", STATIC_DIR, follow_symlinks=False)
         runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=1.0)  # no request lines
@@ -167,7 +143,7 @@ class WebConsole:
         if self._unsubscribe is not None:
             self._unsubscribe()
             self._unsubscribe = None
-        for browser in list(self._browsers):
+        for browser in list(self.browsers):
             browser.sender.cancel()
             with contextlib.suppress(Exception):
                 await browser.ws.close()
@@ -188,15 +164,15 @@ class WebConsole:
         self._broadcast([json.dumps({"type": "event", "text": text})])
 
     def _broadcast(self, messages: list[str]) -> None:
-        for browser in list(self._browsers):
+        for browser in list(self.browsers):
             for text in messages:
                 if not browser.offer(text):
                     log.warning("web: %s is not reading; dropping it", browser.session.info.peer)
                     self._drop(browser)
                     break
 
-    def _drop(self, browser: _Browser) -> None:
-        self._browsers.discard(browser)
+    def _drop(self, browser: Browser) -> None:
+        self.browsers.discard(browser)
         closing = asyncio.create_task(browser.ws.close())
         self._closing.add(closing)
         closing.add_done_callback(self._closing.discard)
@@ -206,7 +182,7 @@ class WebConsole:
         self.ticks += 1
         per_tick = max(1, round(self.web_cfg.max_traces_per_s / self.web_cfg.status_hz))
         messages = [json.dumps(m) for m in self.live.poll(per_tick)]
-        messages.append(json.dumps(self.live.status(len(self._browsers))))
+        messages.append(json.dumps(self.live.status(len(self.browsers))))
         self._broadcast(messages)
 
     # ----- commands (shared by the WebSocket and POST /api/command) -----------------------------
@@ -246,7 +222,7 @@ class WebConsole:
             log.critical("web: estop handler failed", exc_info=True)
             return Reply.failure(ErrorCode.INTERNAL, f"estop failed: {exc!r}; use the hardware e-stop")
 
-    def _release_jog(self, session: WebSession) -> None:
+    def release_jog(self, session: WebSession) -> None:
         """A browser that jogged went away: its jog ends now, not at the dead-man timeout."""
         if self._jogger == session.info.id and self.rt.jog.active:
             self.rt.jog.stop(self._clock())
@@ -268,25 +244,19 @@ class WebConsole:
             response.headers["Cache-Control"] = "no-store"
         return response
 
-    def _session(self, request: web.Request) -> WebSession | None:
+    def session_of(self, request: web.Request) -> WebSession | None:
+        """The request's live session (from its cookie), if any."""
         return self.sessions.get(request.cookies.get(COOKIE_NAME))
-
-    @staticmethod
-    def _same_origin(request: web.Request, *, required: bool) -> bool:
-        origin = request.headers.get("Origin")
-        if origin is None:
-            return not required  # curl and other non-browser clients send none; browsers always do on POST/WS
-        return origin == f"{request.scheme}://{request.host}"
 
     def _peer(self, request: web.Request) -> str:
         return request.remote or "?"
 
     def _authorised(self, request: web.Request, *, unsafe: bool) -> WebSession:
         """The request's session; raises 401 without one, 403 when a state change lacks CSRF proof."""
-        session = self._session(request)
+        session = self.session_of(request)
         if session is None:
             raise web.HTTPUnauthorized(text="log in first (GET /login)", content_type="text/plain")
-        if unsafe and not (self._same_origin(request, required=False)
+        if unsafe and not (same_origin(request, required=False)
                            and csrf_matches(session, request.headers.get(CSRF_HEADER))):
             raise web.HTTPForbidden(text=f"missing or wrong {CSRF_HEADER} header; reload the console",
                                     content_type="text/plain")
@@ -302,7 +272,7 @@ class WebConsole:
 
     # ----- pages and login ----------------------------------------------------------------------
     async def _index(self, request: web.Request) -> web.StreamResponse:
-        session = self._session(request)
+        session = self.session_of(request)
         fresh = session is None and self._token is None
         if fresh:  # loopback without a token: like the shell, no login
             session = self.sessions.create(self._peer(request))
@@ -323,7 +293,7 @@ class WebConsole:
         peer = self._peer(request)
         if self._token is None:
             raise web.HTTPSeeOther("/")
-        if not self._same_origin(request, required=False):
+        if not same_origin(request, required=False):
             raise web.HTTPForbidden(text="login from another site refused", content_type="text/plain")
         wait_s = self.throttle.locked_for_s(peer)
         if wait_s > 0:
@@ -362,109 +332,9 @@ class WebConsole:
         return web.json_response(reply_record(reply), status=_HTTP_STATUS.get(reply.code, 500))
 
     async def _estop(self, request: web.Request) -> web.StreamResponse:
-        if not self._same_origin(request, required=False):
+        if not same_origin(request, required=False):
             raise web.HTTPForbidden(text="e-stop from another site's page refused", content_type="text/plain")
-        session = self._session(request)
+        session = self.session_of(request)
         info = session.info if session else SessionInfo(0, "web", self._peer(request), authenticated=False)
         reply = await self.estop(info)
         return web.json_response(reply_record(reply), status=200 if reply.ok else 500)
-
-    async def _runs(self, request: web.Request) -> web.StreamResponse:
-        self._authorised(request, unsafe=False)
-        names = await asyncio.to_thread(runfiles.list_runs, Path(self.rt.cfg.runs_dir))
-        return web.json_response({"runs": names})
-
-    async def _run(self, request: web.Request) -> web.StreamResponse:
-        self._authorised(request, unsafe=False)
-        run = self._checked(request.match_info["run"], "summary.json").run
-        try:
-            document = await asyncio.to_thread(run_document, Path(self.rt.cfg.runs_dir), run)
-        except CommandError as exc:
-            raise web.HTTPNotFound(text=exc.text, content_type="text/plain") from None
-        return web.json_response(document)
-
-    @staticmethod
-    def _checked(run: str, name: str) -> Pull:
-        """The shell's own validation of a run and file name (no '..', no absolute paths)."""
-        try:
-            command = parse_command(f"pull {shlex.quote(run)} {shlex.quote(name)}")
-        except CommandError as exc:
-            raise web.HTTPBadRequest(text=exc.text, content_type="text/plain") from None
-        assert isinstance(command, Pull)
-        return command
-
-    async def _run_file(self, request: web.Request) -> web.StreamResponse:
-        self._authorised(request, unsafe=False)
-        pull = self._checked(request.match_info["run"], request.match_info["name"])
-        try:
-            opened = await asyncio.to_thread(runfiles.open_run_file, Path(self.rt.cfg.runs_dir), pull.run, pull.file)
-        except CommandError as exc:
-            raise web.HTTPNotFound(text=exc.text, content_type="text/plain") from None
-        opened.handle.close()
-        response = web.FileResponse(opened.path)
-        if request.query.get("download"):
-            response.headers["Content-Disposition"] = f'attachment; filename="{opened.path.name}"'
-        response.headers["X-Content-SHA256"] = opened.sha256
-        return response
-
-    # ----- the live socket ----------------------------------------------------------------------
-    async def _websocket(self, request: web.Request) -> web.StreamResponse:
-        session = self._session(request)
-        if session is None:
-            raise web.HTTPUnauthorized(text="log in first (GET /login)", content_type="text/plain")
-        if not self._same_origin(request, required=True):
-            raise web.HTTPForbidden(text="WebSocket from another origin refused", content_type="text/plain")
-        if len(self._browsers) >= self.max_clients:
-            raise web.HTTPServiceUnavailable(text=f"too many clients (max {self.max_clients}); try again later",
-                                             content_type="text/plain")
-        ws = web.WebSocketResponse(heartbeat=5.0, max_msg_size=4096)
-        await ws.prepare(request)
-        run = self.rt.survey.current
-        current_line = run.line if run is not None else None
-        backlog = [m for m in self.live.backlog if m["type"] != "traces" or m["line"] == current_line]
-        browser = _Browser(ws, session, len(backlog))
-        self._browsers.add(browser)
-        for first in [self.live.hello(), *backlog, self.live.status(len(self._browsers))]:
-            browser.offer(json.dumps(first))
-        commands: asyncio.Queue[tuple[Any, str] | None] = asyncio.Queue(maxsize=SessionLimits().max_pending)
-        worker = asyncio.create_task(self._command_worker(browser, commands))
-        log.info("web: %s connected (session %d)", self._peer(request), session.info.id)
-        try:
-            async for frame in ws:
-                if frame.type != WSMsgType.TEXT:
-                    continue
-                try:
-                    request_id, line = self._parse_socket_command(frame.data)
-                except ValueError as exc:
-                    browser.offer(json.dumps({"type": "reply", "id": None, "ok": False, "code": "bad_command",
-                                              "text": str(exc), "body": []}))
-                    continue
-                if line.strip().lower() == "estop":  # the fast path: now, ahead of anything queued
-                    reply = await self.estop(session.info)
-                    browser.offer(json.dumps({"type": "reply", "id": request_id, **reply_record(reply)}))
-                else:
-                    await commands.put((request_id, line))
-        finally:
-            self._browsers.discard(browser)
-            self._release_jog(session)
-            worker.cancel()
-            browser.sender.cancel()
-            log.info("web: session %d disconnected", session.info.id)
-        return ws
-
-    @staticmethod
-    def _parse_socket_command(text: str) -> tuple[Any, str]:
-        try:
-            data = json.loads(text)
-            line = data["cmd"]
-        except (ValueError, KeyError, TypeError):
-            raise ValueError('send {"id": N, "cmd": "COMMAND"}') from None
-        if not isinstance(line, str):
-            raise ValueError("cmd must be a string")
-        return data.get("id"), line
-
-    async def _command_worker(self, browser: _Browser, commands: asyncio.Queue[tuple[Any, str] | None]) -> None:
-        while (item := await commands.get()) is not None:
-            request_id, line = item
-            reply = await self.execute(browser.session, line)
-            browser.offer(json.dumps({"type": "reply", "id": request_id, **reply_record(reply)}))

@@ -15,6 +15,8 @@ import secrets
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from aiohttp import web
+
 from gprbot.shell.handler import SessionInfo
 from gprbot.shell.session import RateLimiter
 
@@ -73,6 +75,15 @@ class SessionStore:
     def drop(self, key: str) -> None:
         """Log a session out."""
         self._sessions.pop(key, None)
+
+
+def same_origin(request: web.Request, *, required: bool) -> bool:
+    """Whether the request's Origin is this console's; without one: `not required` (curl sends none,
+    browsers always send it on POST and WebSocket requests)."""
+    origin = request.headers.get("Origin")
+    if origin is None:
+        return not required
+    return origin == f"{request.scheme}://{request.host}"
 
 
 def csrf_matches(session: WebSession, given: str | None) -> bool:
