@@ -150,58 +150,85 @@ def socket_clients(url: str, count: int, stop: Any) -> None:
     asyncio.run(main())
 
 
-async def shell_estops(cfg: Config, browsers: int, count: int, kind: str = "chromium"
-                       ) -> tuple[list[float], list[float]]:
-    """(to every wheel commanded to zero, to the reply) in seconds, jog → estop → reset `count` times, with
-    `browsers` consoles open: headless Chromium on this machine, or socket clients in another process."""
-    rt, stop, task = await start_daemon(cfg)
-    opened = await open_browsers(rt, browsers) if browsers and kind == "chromium" else []
-    clients = None
-    if browsers and kind == "sockets":
-        assert rt.web is not None
-        context = multiprocessing.get_context("spawn")
-        stop_clients = context.Event()
-        clients = context.Process(target=socket_clients, args=(rt.web.url, browsers, stop_clients))
-        clients.start()
-        while rt.web.browser_count < browsers:
-            await asyncio.sleep(0.05)
-    reader, writer = await asyncio.open_connection("127.0.0.1", rt.shell_port)
-    assert rt.sim is not None
-    wheels = set(cfg.motors.wheel_map)
+class ShellEstops:
+    """jog → `estop` → reset over one TCP shell connection; per e-stop, the time from sending the line to
+    every emulated wheel commanded to zero and to the reply."""
 
-    async def ask(line: str) -> str:
-        writer.write(line.encode() + b"\n")
-        await writer.drain()
+    def __init__(self, rt: RobotRuntime, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.rt, self.reader, self.writer = rt, reader, writer
+        self.wheels = set(rt.cfg.motors.wheel_map)
+
+    async def ask(self, line: str) -> str:
+        self.writer.write(line.encode() + b"\n")
+        await self.writer.drain()
         while True:
-            text = (await reader.readline()).decode()
+            text = (await self.reader.readline()).decode()
             if text.startswith(("ok", "error")):
                 return text
 
-    to_wheels, to_reply = [], []
-    for _ in range(count):
-        await ask("reset")
-        await ask("jog 0.1 0 2")
+    async def once(self) -> tuple[float | None, float]:
+        assert self.rt.sim is not None
+        await self.ask("reset")
+        await self.ask("jog 0.1 0 2")
         await asyncio.sleep(0.3)
         sent = time.monotonic()
-        reply = await ask("estop")
+        reply = await self.ask("estop")
         replied = time.monotonic()
         assert reply.startswith("ok estop"), reply
         zero: dict[tuple[int, int], float] = {}
-        for event in list(rt.sim.motors.command_log):
-            if event.t >= sent and event.counts_per_s == 0 and (event.address, event.channel) in wheels:
+        for event in list(self.rt.sim.motors.command_log):
+            if event.t >= sent and event.counts_per_s == 0 and (event.address, event.channel) in self.wheels:
                 zero.setdefault((event.address, event.channel), event.t)
-        if len(zero) == len(wheels):
-            to_wheels.append(max(zero.values()) - sent)
-        to_reply.append(replied - sent)
-    writer.close()
-    for browser in opened:
-        await asyncio.to_thread(browser.quit)
-    if clients is not None:
+        return (max(zero.values()) - sent if len(zero) == len(self.wheels) else None), replied - sent
+
+
+async def open_consoles(rt: RobotRuntime, kind: str, count: int) -> Callable[[], Awaitable[None]]:
+    """Open `count` consoles of `kind` ("sockets": clients in another process; "chromium"); their closer."""
+    assert rt.web is not None
+    if kind == "chromium":
+        browsers = await open_browsers(rt, count)
+
+        async def close_browsers() -> None:
+            for browser in browsers:
+                await asyncio.to_thread(browser.quit)
+        return close_browsers
+    context = multiprocessing.get_context("spawn")
+    stop_clients = context.Event()
+    clients = context.Process(target=socket_clients, args=(rt.web.url, count, stop_clients))
+    clients.start()
+    while rt.web.browser_count < count:
+        await asyncio.sleep(0.05)
+
+    async def close_clients() -> None:
         stop_clients.set()
         await asyncio.to_thread(clients.join, 10)
+    return close_clients
+
+
+async def estops_by_case(cfg: Config, rounds: int, per_round: int) -> dict[str, tuple[list[float], list[float]]]:
+    """The three cases interleaved round by round on one daemon, so that the machine's load drifts alike."""
+    cases = (("no console open", "", 0), ("3 consoles (socket clients in another process)", "sockets", 3),
+             ("3 headless Chromiums on this same machine", "chromium", 3))
+    rt, stop, task = await start_daemon(dataclasses.replace(cfg, web=dataclasses.replace(cfg.web, enabled=True)))
+    shell = ShellEstops(rt, *await asyncio.open_connection("127.0.0.1", rt.shell_port))
+    out: dict[str, tuple[list[float], list[float]]] = {name: ([], []) for name, _, _ in cases}
+    for _ in range(rounds):
+        for name, kind, count in cases:
+            close = await open_consoles(rt, kind, count) if count else None
+            await asyncio.sleep(1.0)  # the consoles settle into streaming
+            for _ in range(per_round):
+                wheels, reply = await shell.once()
+                if wheels is not None:
+                    out[name][0].append(wheels)
+                out[name][1].append(reply)
+            if close is not None:
+                await close()
+                while rt.web is not None and rt.web.browser_count:
+                    await asyncio.sleep(0.05)
+    shell.writer.close()
     stop.set()
     await task
-    return to_wheels, to_reply
+    return out
 
 
 def ms(values: list[float]) -> str:
@@ -233,12 +260,11 @@ async def bench(lines: int, length_m: float, speed_m_s: float, estops: int, cpu:
         streamed = bench_config(runs, lines, length_m, speed_m_s, True)
         if cpu:
             await print_survey_cpu(runs, lines, length_m, speed_m_s)
-        for browsers, kind, what in ((0, "", "no console open"),
-                                     (3, "sockets", "3 consoles (socket clients in another process)"),
-                                     (3, "chromium", "3 headless Chromiums on this same machine")):
-            wheels, replies = await shell_estops(streamed, browsers, estops, kind)
-            print(f"shell e-stop, {what}:\n  to wheels {ms(wheels)}\n  to reply  {ms(replies)}")
-        print(f"(p99 of {estops} samples is about their worst one: read it with the max)")
+        rounds = max(1, estops // 10)
+        for what, (wheels, replies) in (await estops_by_case(streamed, rounds, 10)).items():
+            print(f"shell e-stop, {what} ({rounds} rounds of 10, interleaved with the other cases):\n"
+                  f"  to wheels {ms(wheels)}\n  to reply  {ms(replies)}")
+        print("(p99 of a few dozen samples is about their worst one or two: read it with the max)")
 
 
 def main() -> None:

@@ -120,7 +120,7 @@ class WebConsole:
         app = web.Application(middlewares=[self._headers], client_max_size=64 * 1024)
         app.add_routes([
             web.get("/", self._index), web.get("/login", self._login_page), web.post("/login", self._login),
-            web.post("/logout", self._logout), web.get("/ws", lambda request: serve_socket(self, request)),
+            web.post("/logout", self._logout), web.get("/ws", self._websocket),
             web.post("/api/command", self._command), web.post("/api/estop", self._estop),
             *RunRoutes(Path(self.rt.cfg.runs_dir), lambda r: self._authorised(r, unsafe=False)).routes(),
         ])
@@ -310,6 +310,9 @@ class WebConsole:
         response = web.HTTPSeeOther("/")
         self._set_cookie(response, session)
         raise response
+
+    async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        return await serve_socket(self, request)
 
     async def _logout(self, request: web.Request) -> web.StreamResponse:
         session = self._authorised(request, unsafe=True)

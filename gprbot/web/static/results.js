@@ -45,6 +45,7 @@
     const toggles = el("div", { class: "controls" });
     const panel = el("div", { class: "panel wide" }, el("h2", { text: "3D: sparse (grey) and dense (pipe colours) clouds, pipes, surveyed area, depth scale" }), toggles, canvas, note);
     env.loadThree().then((THREE) => {
+      if (!canvas.isConnected) return;  // another run was chosen meanwhile
       const viewer = GprViewer.create(canvas, THREE, doc);
       for (const name of ["sparse", "dense", "pipes"]) {
         const box = el("input", { type: "checkbox", id: `show-${name}`, checked: "" });

@@ -90,7 +90,7 @@
     canvas.addEventListener("wheel", (e) => { e.preventDefault(); view.r *= Math.exp(e.deltaY * 0.001); render(); }, { passive: false });
     place(); renderer.render(scene, camera);
     return {
-      points: count, pipes: pipes.length, render,
+      canvas, run: doc.run, points: count, pipes: pipes.length, render,
       show(name, visible) { groups[name].visible = visible; render(); },
       renderNow() { place(); renderer.render(scene, camera); },
     };
