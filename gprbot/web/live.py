@@ -13,6 +13,7 @@ from __future__ import annotations
 import base64
 import math
 import shutil
+from collections import deque
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -93,6 +94,8 @@ class LiveFeed:
         self._done_sent = False
         self._last_pose: tuple[float, float, float] | None = None
         self._speed = 0.0
+        self._antenna: deque[tuple[float, float, float]] = deque(maxlen=64)  # (t, x, y) of the antenna
+        self._line_origin: dict[int, NDArray[np.float64]] = {}
         self.backlog: list[Message] = []  # everything sent about the current run, for a browser joining late
 
     # ----- messages -----------------------------------------------------------------------------
@@ -166,6 +169,7 @@ class LiveFeed:
         if run.name != self._run:
             self._run, self._next_trace, self._done_sent = run.name, 0, False
             self._line_counts.clear()
+            self._line_origin.clear()
             self._lines_sent.clear()
             self.backlog = []
             out.append({"type": "run", "run": run.name, "lines": run.lines, "survey": {
@@ -181,29 +185,52 @@ class LiveFeed:
         return out
 
     # ----- pieces -------------------------------------------------------------------------------
-    def _line_of(self, run: SurveyRun, trace: Trace) -> tuple[int, float] | None:
-        """The line a trace belongs to and its distance along it (driving time in the line × speed)."""
+    def _line_of(self, run: SurveyRun, trace: Trace) -> int | None:
+        """The line a trace belongs to (None: recorded between lines)."""
         for line in (run.line, run.line - 1):
-            windows = run.windows.get(line, ())
-            if any(a <= trace.t and (math.isnan(b) or trace.t <= b) for a, b in windows):
-                driven = sum(min(trace.t, b if not math.isnan(b) else trace.t) - a for a, b in windows if a <= trace.t)
-                return line, driven * run.survey.speed_m_s
+            if any(a <= trace.t and (math.isnan(b) or trace.t <= b) for a, b in run.windows.get(line, ())):
+                return line
         return None
+
+    def _sample_antenna(self) -> None:
+        """Keep the antenna's newest fused position (base pose + lever arm), for the traces' distances."""
+        pose = self.rt.fusion.newest_pose()
+        if pose is None or (self._antenna and self._antenna[-1][0] >= pose.t):
+            return
+        qx, qy, qz, qw = (float(v) for v in pose.orientation)
+        yaw = math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+        arm = self.rt.cfg.mount.antenna_lever_arm_m
+        x = float(pose.position[0]) + math.cos(yaw) * arm[0] - math.sin(yaw) * arm[1]
+        y = float(pose.position[1]) + math.sin(yaw) * arm[0] + math.cos(yaw) * arm[1]
+        self._antenna.append((pose.t, x, y))
+
+    def _distances(self, line: int, times: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Each trace's distance from the line's first trace, from the fused poses (the newest traces,
+        which the filter has not covered yet, get its newest position: a lag of its reorder window)."""
+        if len(self._antenna) < 2:
+            return np.zeros(len(times))
+        t, x, y = (np.array(c) for c in zip(*self._antenna, strict=True))
+        xy = np.column_stack([np.interp(times, t, x), np.interp(times, t, y)])
+        origin = self._line_origin.setdefault(line, xy[0])
+        distances: NDArray[np.float64] = np.hypot(*(xy - origin).T)
+        return distances
 
     def _new_traces(self, run: SurveyRun, max_traces: int) -> list[Message]:
         new = run.traces[self._next_trace:]
         self._next_trace += len(new)
-        by_line: dict[int, list[tuple[Trace, float]]] = {}
+        self._sample_antenna()
+        by_line: dict[int, list[Trace]] = {}
         for trace in new:
-            found = self._line_of(run, trace)
-            if found is not None:
-                by_line.setdefault(found[0], []).append((trace, found[1]))
+            line = self._line_of(run, trace)
+            if line is not None:
+                by_line.setdefault(line, []).append(trace)
         out = []
-        for line, items in sorted(by_line.items()):
-            data = np.stack([np.asarray(tr.samples, dtype=np.float32) for tr, _ in items])
+        for line, traces in sorted(by_line.items()):
+            data = np.stack([np.asarray(tr.samples, dtype=np.float32) for tr in traces])
             group = max(1, math.ceil(len(data) / max(max_traces, 1)))
             data = stack_traces(data, group)
-            along = stack_traces(np.array([[x] for _, x in items], dtype=np.float32), group)[:, 0]
+            distances = self._distances(line, np.array([tr.t for tr in traces]))
+            along = stack_traces(distances.astype(np.float32)[:, None], group)[:, 0]
             data, factor = decimate_samples(data)
             counts, scale = quantise(data)
             first = self._line_counts.get(line, 0)

@@ -151,6 +151,7 @@
   }
   function radargramOptions() {
     return { gainDb: +$("gain").value, tpow: +$("tpow").value, cmap: $("cmap").value, background: $("bgrem").checked,
+             dewow: $("dewow").checked, frequency_mhz: state.hello ? state.hello.gpr.frequency_mhz : 900,
              velocity: state.velocity, lineLength_m: state.lineLength };
   }
   let drawQueued = false;
@@ -159,7 +160,7 @@
     requestAnimationFrame(() => { drawQueued = false; state.drawn = GprDraw.radargram($("radargram"), state.lines[state.line], radargramOptions()).drawn; });
   }
   function drawMap() { GprDraw.map($("map"), state.map); }
-  for (const id of ["gain", "tpow", "cmap", "bgrem"]) $(id).addEventListener("input", () => {
+  for (const id of ["gain", "tpow", "cmap", "bgrem", "dewow"]) $(id).addEventListener("input", () => {
     $("gain-v").textContent = `${$("gain").value} dB`; $("tpow-v").textContent = $("tpow").value; drawRadargram();
   });
 

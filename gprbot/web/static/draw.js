@@ -92,9 +92,19 @@
     let first = 0;
     while (first < n - 1 && line.columns[first].x_m < xStart) first++;
     const cols = line.columns.slice(first);
-    const mean = new Float32Array(m);
+    // dewow: minus each trace's running mean over about 1.5 periods of the antenna's centre frequency;
+    // background: minus the line's mean (dewowed) trace, which removes the direct and ground waves' band
+    const half = Math.max(1, Math.round(0.75 * 1000 / (opts.frequency_mhz || 900) / line.dt_ns)), sums = new Float64Array(m + 1);
+    const dewowed = (v) => {
+      if (!opts.dewow) return v;
+      const out = new Float32Array(m);
+      for (let k = 0; k < m; k++) sums[k + 1] = sums[k] + v[k];
+      for (let k = 0; k < m; k++) { const a = Math.max(0, k - half), b = Math.min(m, k + half + 1); out[k] = v[k] - (sums[b] - sums[a]) / (b - a); }
+      return out;
+    };
+    const mean = new Float32Array(m), shown = cols.map((c) => dewowed(c.values));
     if (opts.background) {
-      for (const c of line.columns) for (let k = 0; k < m; k++) mean[k] += c.values[k];
+      for (const c of first > 0 ? line.columns.map((c) => dewowed(c.values)) : shown) for (let k = 0; k < m; k++) mean[k] += c[k];
       for (let k = 0; k < m; k++) mean[k] /= n;
     }
     const gain = Math.pow(10, opts.gainDb / 20), tgain = new Float32Array(m);
@@ -103,8 +113,7 @@
       tgain[k] = gain * Math.pow(1 + t, opts.tpow);
     }
     const img = new Float32Array(cols.length * m);
-    for (let j = 0; j < cols.length; j++)
-      for (let k = 0; k < m; k++) img[k * cols.length + j] = (cols[j].values[k] - mean[k]) * tgain[k];
+    for (let j = 0; j < cols.length; j++) for (let k = 0; k < m; k++) img[k * cols.length + j] = (shown[j][k] - mean[k]) * tgain[k];
     const sample = [];
     for (let i = 0; i < img.length; i += 7) sample.push(Math.abs(img[i]));
     sample.sort((a, b) => a - b);
@@ -123,7 +132,7 @@
     ctx.drawImage(off, MARGIN.left, MARGIN.top, Math.min(w, spanPx), h);
     const tEnd = (m - 1) * line.dt_ns - line.t0_ns, v = opts.velocity || 0.1;
     ticks(ctx, MARGIN.left, MARGIN.top, w, h, [x0, x1], [-line.t0_ns, tEnd],
-          "distance along the line (m, from time × speed)", "t (ns)",
+          "distance along the line (m, fused poses)", "t (ns)",
           { range: [-line.t0_ns * v / 2, tEnd * v / 2], label: `depth (m) at v = ${v.toFixed(3)} m/ns` });
     return { drawn: cols.length };
   }
