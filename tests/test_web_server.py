@@ -9,6 +9,7 @@ import contextlib
 import dataclasses
 import json
 import logging
+import socket
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -28,15 +29,18 @@ from tests.web_support import web_config
 
 
 @contextlib.asynccontextmanager
-async def daemon(tmp_path: Path, token_file: Path | None = None) -> AsyncIterator[RobotRuntime]:
+async def daemon(tmp_path: Path, token_file: Path | None = None, web_port: int = 0,
+                 wait_for_web: bool = True) -> AsyncIterator[RobotRuntime]:
     """The daemon (no worker process) with its shell and console on free loopback ports."""
     stop = asyncio.Event()
     started: list[RobotRuntime] = []
-    task = asyncio.create_task(serve(web_config(tmp_path), shell_port=0, stop=stop, use_worker=False,
+    cfg = web_config(tmp_path)
+    cfg = dataclasses.replace(cfg, web=dataclasses.replace(cfg.web, port=web_port))
+    task = asyncio.create_task(serve(cfg, shell_port=0, stop=stop, use_worker=False,
                                      token_file=str(token_file) if token_file else None,
                                      notifier=SdNotifier(environ={}), on_ready=started.append))  # type: ignore[arg-type]
     async with asyncio.timeout(30):
-        while not started or started[0].web is None:
+        while not started or (started[0].web is None if wait_for_web else started[0].shell is None):
             assert not task.done(), f"the daemon exited with {task.result()}"
             await asyncio.sleep(0.02)
     try:
@@ -207,6 +211,19 @@ async def test_run_files_are_checked_like_the_shells_pull(tmp_path: Path) -> Non
             assert escape.status in (400, 404)
         async with http.get(base(rt) + "/runs/r1/missing.txt") as missing:
             assert missing.status == 404
+
+
+async def test_a_busy_console_port_is_reported_and_does_not_hold_up_the_daemon(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        async with daemon(tmp_path, web_port=taken.getsockname()[1], wait_for_web=False) as rt:
+            assert rt.supervisor is not None
+            async with asyncio.timeout(10):
+                while not rt.supervisor.ready:  # READY=1 for systemd: every task runs, the console's too
+                    await asyncio.sleep(0.05)
+            assert rt.web is None and rt.web_error is not None and "cannot listen" in rt.web_error
+            assert any(t.name == "web" and t.state == "running" and t.restarts == 0 for t in rt.supervisor.health())
 
 
 async def test_a_console_beyond_loopback_needs_the_token(tmp_path: Path) -> None:

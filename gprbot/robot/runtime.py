@@ -77,6 +77,7 @@ class RobotRuntime:
         self.token_file = token_file
         self.shell: ShellServer | None = None
         self.web: WebConsole | None = None
+        self.web_error: str | None = None  # why the web console is not listening, if it is not
         self.motors: MotorDriver | None = None
         self.gpr: GprDriver | None = None
         self.realsense: RealsenseDriver | None = None
@@ -258,16 +259,9 @@ class RobotRuntime:
                     await server.close()
 
     async def _run_web(self, beat: Callable[[], None]) -> None:
-        from gprbot.web.server import WebConsole
+        from gprbot.web.server import serve_console
 
-        console = WebConsole(self, token_file=self.token_file)
-        await console.start()
-        self.web = console
-        try:
-            await console.run(beat)
-        finally:
-            self.web = None
-            await console.close()
+        await serve_console(self, beat, token_file=self.token_file)
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
         from gprbot.robot.handler import RobotHandler

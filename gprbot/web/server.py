@@ -341,3 +341,29 @@ class WebConsole:
         info = session.info if session else SessionInfo(0, "web", self._peer(request), authenticated=False)
         reply = await self.estop(info)
         return web.json_response(reply_record(reply), status=200 if reply.ok else 500)
+
+
+async def serve_console(runtime: RobotRuntime, beat: Callable[[], None], *, token_file: str | None = None,
+                        retry_s: float = 5.0) -> None:
+    """The daemon's `web` task. The console is not critical: a port in use or a refused config is logged
+    (once per distinct reason) and retried here, so that it never holds up READY=1 or the robot."""
+    last_error = ""
+    while True:
+        console = WebConsole(runtime, token_file=token_file)
+        try:
+            await console.start()
+        except ConfigError as exc:
+            if str(exc) != last_error:
+                log.error("web console not started: %s; retrying every %g s", exc, retry_s)
+                last_error = str(exc)
+            runtime.web_error = str(exc)
+            for _ in range(max(1, round(retry_s / 0.5))):
+                beat()
+                await asyncio.sleep(0.5)
+            continue
+        runtime.web, runtime.web_error = console, None
+        try:
+            await console.run(beat)
+        finally:
+            runtime.web = None
+            await console.close()
