@@ -92,7 +92,7 @@ class LiveFeed:
         self._line_counts: dict[int, int] = {}
         self._lines_sent: dict[int, bool] = {}  # line → whether its message had the worker's section
         self._done_sent = False
-        self._last_pose: tuple[float, float, float] | None = None
+        self._base: deque[tuple[float, float, float]] = deque(maxlen=32)  # (t, x, y) of the base, per status
         self._speed = 0.0
         self._antenna: deque[tuple[float, float, float]] = deque(maxlen=64)  # (t, x, y) of the antenna
         self._line_origin: dict[int, NDArray[np.float64]] = {}
@@ -119,12 +119,14 @@ class LiveFeed:
         pose_record = None
         if pose is not None:
             x, y, z = (float(v) for v in pose.position)
-            yaw = rt.fusion.yaw_rad
-            if self._last_pose is not None and pose.t > self._last_pose[2]:
-                dt = pose.t - self._last_pose[2]
-                self._speed = math.hypot(x - self._last_pose[0], y - self._last_pose[1]) / dt
-            self._last_pose = (x, y, pose.t)
-            pose_record = {"x": round(x, 4), "y": round(y, 4), "z": round(z, 4), "yaw_deg": round(math.degrees(yaw), 2)}
+            self._base.append((pose.t, x, y))
+            # speed over the last second of poses: a one-tick difference jumps with every filter correction
+            recent = [b for b in self._base if b[0] >= pose.t - 1.0]
+            if len(recent) >= 2 and recent[-1][0] > recent[0][0]:
+                (t0, x0, y0), (t1, x1, y1) = recent[0], recent[-1]
+                self._speed = math.hypot(x1 - x0, y1 - y0) / (t1 - t0)
+            pose_record = {"x": round(x, 4), "y": round(y, 4), "z": round(z, 4),
+                           "yaw_deg": round(math.degrees(rt.fusion.yaw_rad), 2)}
         devices = []
         for driver in (rt.motors, rt.gpr):
             if driver is not None:
