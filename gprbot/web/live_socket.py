@@ -102,6 +102,8 @@ async def serve_socket(console: WebConsole, request: web.Request) -> web.StreamR
             if line.strip().lower() == "estop":  # the fast path: now, ahead of anything queued
                 reply = await console.estop(session.info)
                 browser.offer(json.dumps({"type": "reply", "id": request_id, **reply_record(reply)}))
+            elif (refusal := console.rate_limited(session)) is not None:  # counted on arrival, as the shell does
+                browser.offer(json.dumps({"type": "reply", "id": request_id, **reply_record(refusal)}))
             else:
                 await commands.put((request_id, line))
     finally:
@@ -117,5 +119,5 @@ async def _command_worker(console: WebConsole, browser: Browser,
                           commands: asyncio.Queue[tuple[Any, str] | None]) -> None:
     while (item := await commands.get()) is not None:
         request_id, line = item
-        reply = await console.execute(browser.session, line)
+        reply = await console.execute(browser.session, line, counted=True)
         browser.offer(json.dumps({"type": "reply", "id": request_id, **reply_record(reply)}))

@@ -81,7 +81,7 @@ class WebConsole:
         from gprbot.robot.handler import RobotHandler
 
         cfg = runtime.cfg
-        self.rt, self.web_cfg, self._clock = runtime, cfg.web, clock
+        self.rt, self.web_cfg, self.clock = runtime, cfg.web, clock
         self.host, self.port = cfg.web.host, cfg.web.port
         self.handler = RobotHandler(runtime)
         self.sessions = SessionStore(cfg.web.session_ttl_s, cfg.shell.rate_per_s, clock)
@@ -186,17 +186,23 @@ class WebConsole:
         self._broadcast(messages)
 
     # ----- commands (shared by the WebSocket and POST /api/command) -----------------------------
-    async def execute(self, session: WebSession, line: str) -> Reply:
-        """One shell command line from a logged-in browser: parsed, limited and run like the shell's."""
+    def rate_limited(self, session: WebSession) -> Reply | None:
+        """The shell's per-client rate limit, counted when a command arrives; the refusal, or None."""
+        if session.rate.allow(self.clock()):
+            return None
+        return Reply.failure(ErrorCode.RATE_LIMITED, f"more than {self.sessions.rate_per_s:g} commands/s; slow down")
+
+    async def execute(self, session: WebSession, line: str, *, counted: bool = False) -> Reply:
+        """One shell command line from a logged-in browser: parsed, limited (unless `counted` already on
+        arrival) and run like the shell's."""
         try:
             command = parse_command(line)
         except CommandError as exc:
             return Reply.failure(exc.code, exc.text)
         if isinstance(command, Estop):
             return await self.estop(session.info)
-        if not session.rate.allow(self._clock()):
-            limit = self.sessions.rate_per_s
-            return Reply.failure(ErrorCode.RATE_LIMITED, f"more than {limit:g} commands/s; slow down")
+        if not counted and (refusal := self.rate_limited(session)) is not None:
+            return refusal
         if isinstance(command, Empty):
             return Reply.success()
         if not isinstance(command, ROBOT_COMMANDS):
@@ -214,7 +220,7 @@ class WebConsole:
 
     async def estop(self, info: SessionInfo) -> Reply:
         """The shell's e-stop path: wheels commanded to zero now, latched until `reset`."""
-        self.last_estop_t = self._clock()
+        self.last_estop_t = self.clock()
         log.warning("web: estop from %s", info.peer)
         try:
             return await asyncio.wait_for(self.handler.estop(info), HANDLER_TIMEOUT_S)
@@ -225,7 +231,7 @@ class WebConsole:
     def release_jog(self, session: WebSession) -> None:
         """A browser that jogged went away: its jog ends now, not at the dead-man timeout."""
         if self._jogger == session.info.id and self.rt.jog.active:
-            self.rt.jog.stop(self._clock())
+            self.rt.jog.stop(self.clock())
             log.info("web: jog of session %d stopped (its socket closed)", session.info.id)
 
     # ----- helpers ------------------------------------------------------------------------------
