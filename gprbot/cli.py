@@ -86,7 +86,9 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
     dest = Path(args.out) if args.out else Path(cfg.runs_dir) / time.strftime("pulled-%Y%m%d-%H%M%S")
     talk = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document alone
     print(f"starting the daemon on the simulated robot ({cfg.survey.lines} lines; it drives in real time)", file=talk)
-    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", file=talk, flush=True)))
+    result = asyncio.run(survey_via_shell(cfg, dest, on_event=lambda e: print(f"* {e}", file=talk, flush=True),
+                                          on_console=lambda url: print(f"follow it live: {url}", file=talk,
+                                                                       flush=True)))
     print(f"run {result.run}: pulled {len(result.pulled)} files over the shell into {dest}", file=talk)
     # The operator's copy of pipes.json, judged against the simulated scene's truth.
     found = read_pipes_json(dest / "pipes.json")

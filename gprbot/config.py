@@ -234,6 +234,18 @@ class ShellConfig:
 
 
 @dataclass(frozen=True)
+class WebConfig:
+    """The operator's web console, served by the daemon; beyond loopback it takes the shell's token."""
+
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = 8780
+    session_ttl_s: float = 43200.0  # a login lasts one working day
+    status_hz: float = 4.0  # status and trace pushes to each browser
+    max_traces_per_s: float = 25.0  # per browser; a faster GPR is stacked down to this
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """The simulated world used when no hardware is attached."""
 
@@ -301,6 +313,7 @@ class Config:
     motion: MotionConfig = field(default_factory=MotionConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     shell: ShellConfig = field(default_factory=ShellConfig)
+    web: WebConfig = field(default_factory=WebConfig)
     gpr_device: GprDeviceConfig = field(default_factory=GprDeviceConfig)
     realsense: RealsenseConfig = field(default_factory=RealsenseConfig)
     runs_dir: str = "runs"

@@ -17,6 +17,7 @@ from gprbot.sim.scene import Scene
 from gprbot.sim.survey_sim import simulate_survey
 from gprbot.sim.truth import cross_section_mask
 from gprbot.survey import assemble_bscan, line_windows, split_by_line
+from gprbot.web.report import write_report_safely
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,7 @@ def run_demo(cfg: Config, scene: Scene, out_dir: Path) -> DemoResult:
         }
         region_pad = (region[0] - 0.2, region[1] + 0.2, region[2] - 0.2, region[3] + 0.2)
         write_survey_outputs(out_dir, result, meta, region_pad, [p.points for p in scene.pipes], truth_masks, bscans)
+        write_report_safely(out_dir)  # report.html: the console's results page, self-contained
         step("written")
     ok = within_bounds(matches)
     return DemoResult(out_dir, result, matches, extras, table, ok, time.perf_counter() - start)

@@ -14,6 +14,7 @@ from gprbot.cli import main
 SHORT_SURVEY = """
 survey: {{lines: 3, spacing_m: 0.1, length_m: 0.6, speed_m_s: 0.2, settle_s: 0.3, start_xy_m: [0.1, 0.0]}}
 sim: {{scene: paper_slab, poses: noise}}
+web: {{port: 0}}
 runs_dir: {runs}
 """
 
@@ -26,6 +27,9 @@ def test_demo_via_daemon_surveys_and_pulls_over_tcp(tmp_path: Path, capsys: pyte
     assert main(["demo", "--config", str(config), "--out", str(dest)]) == 0  # the default: the operator's path
     out = capsys.readouterr().out
     assert "* survey done" in out
+    assert "follow it live: http://127.0.0.1:" in out  # the web console's URL, before the survey starts
+    assert out.index("follow it live") < out.index("* survey started")
+    assert (dest / "report.html").stat().st_size > 100_000  # the self-contained results page came with the run
 
     run_dirs = list((tmp_path / "runs").iterdir())
     assert len(run_dirs) == 1

@@ -151,4 +151,8 @@ class RobotHandler:
             lines.append(f"worker {'alive' if w.alive else 'down'} busy {w.busy} jobs {w.jobs_done} "
                          f"failed {w.jobs_failed} restarts {w.restarts}")
         lines.append(f"recorder {'recording ' + str(rt.recorder.run_dir) if rt.recorder.recording else 'idle'}")
+        if rt.web is not None:
+            lines.append(f"web {rt.web.url} browsers {rt.web.browser_count}")
+        elif rt.web_error:
+            lines.append(f"web DOWN {rt.web_error}")
         return lines

@@ -37,6 +37,7 @@ from gprbot.shell.server import SerialShell, ShellServer
 
 if TYPE_CHECKING:
     from gprbot.daemon import Supervisor
+    from gprbot.web.server import WebConsole
 
 log = logging.getLogger(__name__)
 CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
@@ -77,6 +78,8 @@ class RobotRuntime:
         self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
         self.token_file = token_file
         self.shell: ShellServer | None = None
+        self.web: WebConsole | None = None
+        self.web_error: str | None = None  # why the web console is not listening, if it is not
         self.motors: MotorDriver | None = None
         self.gpr: GprDriver | None = None
         self.realsense: RealsenseDriver | None = None
@@ -153,6 +156,8 @@ class RobotRuntime:
             TaskSpec("recorder", self.recorder.run, watchdog_s=5.0, restart="always"),
             TaskSpec("shell.tcp", self._run_shell, watchdog_s=None, restart="always"),
         ]
+        if self.cfg.web.enabled:
+            tasks.append(TaskSpec("web", self._run_web, watchdog_s=5.0, restart="always", critical=False))
         if self.cfg.shell.serial_console:
             tasks.append(TaskSpec("shell.serial", self._run_serial_shell, watchdog_s=None, restart="always"))
         if self.sim is not None:
@@ -270,6 +275,11 @@ class RobotRuntime:
         """The TCP shell's task: the server (bound at start) serves on the loop; closed in close_devices."""
         beat()
         await asyncio.Event().wait()
+
+    async def _run_web(self, beat: Callable[[], None]) -> None:
+        from gprbot.web.server import serve_console
+
+        await serve_console(self, beat, token_file=self.token_file)
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
         from gprbot.robot.handler import RobotHandler

@@ -27,6 +27,7 @@ from gprbot.gpr.bscan import BScan
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
 from gprbot.infer.run_files import write_survey_outputs
 from gprbot.infer.worker import InferenceWorker
+from gprbot.infer.worker_process import LineJobResult
 from gprbot.messages import Trace
 from gprbot.motion.planner import Segment, SurveyPlan, plan_survey
 from gprbot.retention import prune_runs
@@ -35,6 +36,7 @@ from gprbot.robot.recorder import Recorder
 from gprbot.robot.tracking import tracking_velocity
 from gprbot.runlog import SurveyEvent, make_run_header
 from gprbot.survey import assemble_bscan
+from gprbot.web.report import write_report_safely
 
 log = logging.getLogger(__name__)
 STEP_S = 0.02  # how often the runner re-checks pause/abort while a segment runs
@@ -56,6 +58,7 @@ class SurveyRun:
     windows: dict[int, list[list[float]]] = field(default_factory=dict)
     traces: list[Trace] = field(default_factory=list)
     bscans: dict[int, BScan] = field(default_factory=dict)
+    previews: dict[int, LineJobResult] = field(default_factory=dict)  # the worker's per-line interpretation
     pipes: int | None = None
     error: str | None = None
     abort_reason: str | None = None
@@ -270,6 +273,7 @@ class SurveyRunner:
             writing = asyncio.to_thread(write_survey_outputs, run.run_dir, result, meta, extent, self.truth_axes,
                                         raw_lines=run.bscans)
         await self._beating(writing, beat)
+        await self._beating(asyncio.to_thread(write_report_safely, run.run_dir), beat)  # the offline report.html
 
     async def _drive(self, run: SurveyRun, segment: Segment, beat: Callable[[], None]) -> None:
         """Drive one segment for its planned duration (pauses excluded)."""
@@ -330,6 +334,7 @@ class SurveyRunner:
             except GprbotError as exc:
                 log.warning("preview of line %d failed: %s", line, exc)
                 return
+            run.previews[line] = preview
             self.emit(f"line {line} preview velocity {preview.velocity_m_per_ns:.4f} m/ns")
 
     async def _reconstruct(self, bscans: dict[int, BScan]) -> SurveyResult:

@@ -22,7 +22,7 @@ class SessionInfo:
     """One connected client (or the serial console) as the handler sees it."""
 
     id: int
-    transport: Literal["tcp", "serial"]
+    transport: Literal["tcp", "serial", "web"]
     peer: str
     authenticated: bool
 
