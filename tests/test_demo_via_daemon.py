@@ -24,8 +24,11 @@ def test_demo_via_daemon_surveys_and_pulls_over_tcp(tmp_path: Path, capsys: pyte
     config = tmp_path / "short.yaml"
     config.write_text(SHORT_SURVEY.format(runs=tmp_path / "runs"))
     dest = tmp_path / "pulled"
-    assert main(["demo", "--config", str(config), "--out", str(dest)]) == 0  # the default: the operator's path
+    # The default is the operator's path. Exit 3 says the truth check failed: this 3-line, 0.6 m survey
+    # ends at x 0.7 m, where paper_slab's PVC pipe lies, so its truth table is not the subject here.
+    assert main(["demo", "--config", str(config), "--out", str(dest)]) in (0, 3)
     out = capsys.readouterr().out
+    assert "within bounds (3 cm position and depth, 30 % diameter):" in out
     assert "* survey done" in out
     assert "follow it live: http://127.0.0.1:" in out  # the web console's URL, before the survey starts
     assert out.index("follow it live") < out.index("* survey started")

@@ -43,6 +43,6 @@ def test_gprbot_demo_exits_non_zero_when_its_truth_check_fails(
     result = types.SimpleNamespace(lines=[], reconstruction=types.SimpleNamespace(pipes=[]), velocity_estimated=False,
                                    velocity_m_per_ns=0.1)
     monkeypatch.setattr(demo, "run_demo", lambda cfg, scene, out: types.SimpleNamespace(
-        result=result, seconds=0.0, table="(no pipes)", ok=False))
+        result=result, seconds=0.0, table="(no pipes)", ok=False, out_dir=out, matches=[], extras=[]))
     assert cli.main(["demo", "--offline", "--out", str(tmp_path)]) == 3
     assert "within bounds (3 cm position and depth, 30 % diameter): NO" in capsys.readouterr().out
