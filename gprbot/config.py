@@ -150,6 +150,9 @@ class RealsenseConfig:
     stall_timeout_s: float = 3.0  # no frame for this long: the camera counts as lost and is reopened
     reconnect_backoff_s: tuple[float, float] = (0.5, 8.0)  # first and longest wait between reopen attempts
     clock_jump_threshold_s: float = 0.1  # device clock steps beyond this re-anchor the host-time conversion
+    # Raw RGB-D frames into the run log (replay then re-runs VO on them). Off by default: uncompressed they
+    # are ~300 kB per 424x240 pair, 9 MB/s at 30 fps; the VO measurements are always logged (~0.3 kB each).
+    record_frames: bool = False
 
 
 @dataclass(frozen=True)
