@@ -139,6 +139,12 @@ class ErrorStateEkf:
         acc = self.R @ (self.accel - self.accel_bias) + GRAVITY
         return self.p + self.v * dt + 0.5 * acc * dt * dt, self.R @ exp_so3((self.gyro - self.gyro_bias) * dt)
 
+    def horizontal_std(self) -> tuple[float, float]:
+        """1σ of the horizontal position (m, the covariance ellipse's major axis) and of the yaw (rad)."""
+        P = self.kf.P
+        major = float(np.linalg.eigvalsh(P[:2, :2])[-1])
+        return math.sqrt(max(major, 0.0)), math.sqrt(max(float(P[ATT.start + 2, ATT.start + 2]), 0.0))
+
     def update_wheels(self, speeds: FloatArray) -> bool:
         """The wheels' translation (rim speeds less their common mode), zero vertical body speed and the
         floor's height; False if gated.

@@ -14,7 +14,6 @@ import heapq
 import math
 from collections import deque
 from dataclasses import dataclass
-from itertools import count
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,6 +43,7 @@ class FusionStats:
     vo_skipped: int = 0
     vo_lost: int = 0
     late_dropped: int = 0
+    vo_late_dropped: int = 0  # of late_dropped, VO measurements (VO slower than the reorder window)
 
 
 class PoseFuser:
@@ -56,7 +56,7 @@ class PoseFuser:
         self.stats = FusionStats()
         self._initial = (np.asarray(initial_position, dtype=np.float64), initial_yaw_rad)
         self._heap: list[tuple[float, int, int, SensorMessage]] = []
-        self._seq = count()
+        self._next_seq = 0  # ties in time and priority keep arrival order
         self._newest = -math.inf
         self._released = -math.inf
         self._init_gyro: list[NDArray[np.float64]] = []
@@ -70,8 +70,10 @@ class PoseFuser:
         key = message.t - self.config.wheel_speed_delay_s if isinstance(message, WheelSpeeds) else message.t
         if key < self._released:
             self.stats.late_dropped += 1
+            self.stats.vo_late_dropped += isinstance(message, VoMeasurement)
             return []
-        heapq.heappush(self._heap, (key, _PRIORITY[type(message)], next(self._seq), message))
+        heapq.heappush(self._heap, (key, _PRIORITY[type(message)], self._next_seq, message))
+        self._next_seq += 1
         self._newest = max(self._newest, key)
         return self._release(self._newest - self.config.reorder_window_s)
 
@@ -132,9 +134,10 @@ class PoseFuser:
         """The output poses due up to t (extrapolated from the state, which trails by < one IMU step)."""
         ekf, out = self.ekf, []
         period = 1.0 / self.config.output_rate_hz
+        position_std, yaw_std = ekf.horizontal_std()
         while self._next_tick <= t:
             position, attitude = ekf.extrapolate(self._next_tick)
-            out.append(Pose(self._next_tick, position, matrix_to_quat(attitude)))
+            out.append(Pose(self._next_tick, position, matrix_to_quat(attitude), position_std, yaw_std))
             self._next_tick = round((self._next_tick + period) / period) * period
         self.history.extend(out)
         return out

@@ -79,6 +79,8 @@ class SimRobot:
         self._t = clock()
         self._angles = self.wheel_angles()
         self.traces_served = 0
+        self.imu_emitted = 0  # IMU samples pushed into the emulated D435i
+        self.loop_cpu_s = 0.0  # CPU the simulator spends on the event loop (IMU synthesis, GPR forward model)
         self._slip_rng = np.random.default_rng(cfg.sim.seed + 7919)
         self.slip = np.zeros(3)  # how much faster than the ground under it each wheel turns (fraction)
         self._slip_wander = np.zeros(3)
@@ -198,18 +200,23 @@ class SimRobot:
     def _trace(self, number: int) -> NDArray[np.float32]:
         """Trace `number` as the antenna records it at its true position now (the emulator's source)."""
         del number
+        began = time.thread_time()
         mid = self.antenna_xy()[None, :]
         yaw = float(self.pose[2])
         self.traces_served += 1
         bscan = simulate_bscan(self.scene, mid, self.cfg.gpr, self._rng, offset_dir=(math.cos(yaw), math.sin(yaw)))
+        self.loop_cpu_s += time.thread_time() - began
         return np.asarray(bscan[0], dtype=np.float32)
 
     # ----- the IMU ------------------------------------------------------------------------------
     async def feed_imu(self, period_s: float = 0.01) -> AsyncIterator[int]:
         """Push the IMU samples into the emulated D435i every period_s; yields the number pushed each time."""
         async for batch in self.imu_batches(period_s):
+            began = time.thread_time()
             for sample in batch:
                 self.camera.push_imu(sample.t, sample.gyro, sample.accel)
+            self.imu_emitted += len(batch)
+            self.loop_cpu_s += time.thread_time() - began
             yield len(batch)
 
     async def imu_batches(self, period_s: float = 0.01) -> AsyncIterator[list[ImuSample]]:
@@ -221,6 +228,7 @@ class SimRobot:
         last_velocity, last_t = self.velocity.copy(), start
         while True:
             await asyncio.sleep(period_s)
+            began = time.thread_time()
             now = self.advance()
             span = max(now - last_t, 1e-6)
             accel_world = (self.velocity - last_velocity) / span
@@ -233,6 +241,7 @@ class SimRobot:
                 batch.append(ImuSample(next_accel, accel=self._accel_sample(accel_world)))
                 next_accel += accel_dt
             batch.sort(key=lambda m: m.t)
+            self.loop_cpu_s += time.thread_time() - began
             yield batch
 
     def _gyro_sample(self) -> NDArray[np.float64]:

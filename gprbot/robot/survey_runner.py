@@ -179,6 +179,7 @@ class SurveyRunner:
         header = make_run_header(self.cfg, time.time(), run=run.name, kind="survey",
                                  survey=to_dict(run.survey), **self.run_meta())
         self.recorder.open(run.run_dir, header)
+        self.recorder.append(self.fusion.snapshot(self.clock()), self.clock())  # replay continues this filter
         await self._beating(self._wait_fusion(), beat)
         if run.abort_reason is None:
             run.state = "running"

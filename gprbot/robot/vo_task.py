@@ -68,6 +68,11 @@ class VoTask:
             self._thread.join(timeout=5.0)
             self._thread = None
 
+    @property
+    def native_id(self) -> int | None:
+        """The VO thread's OS id (for per-thread CPU accounting)."""
+        return self._thread.native_id if self._thread is not None else None
+
     def offer(self, frame: RawRgbdFrame) -> None:
         """Queue a frame for VO (from the event loop; never blocks); the oldest is dropped when full."""
         with self._ready:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -40,10 +41,15 @@ class D435iEmulator:
         self.camera = SoftwareD435i(cfg.width, cfg.height, intrinsics,
                                     RecordingRates(cfg.gyro_hz, cfg.accel_hz, cfg.fps), serial=serial)
         self.frames_pushed = 0
-        self.render_s = 0.0  # CPU time spent rendering (the simulator's, not the robot's)
+        self.render_cpu_s = 0.0  # the frame thread's CPU time: the simulator's cost, not the robot's
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._push_lock = threading.Lock()  # one producer at a time into librealsense
+
+    @property
+    def native_id(self) -> int | None:
+        """The frame thread's OS id (for per-thread CPU accounting)."""
+        return self._thread.native_id if self._thread is not None else None
 
     @property
     def device(self) -> Any:
@@ -82,9 +88,9 @@ class D435iEmulator:
 
     def _frames(self) -> None:
         period = 1.0 / self.cfg.fps
-        next_t = self._clock()
+        next_t, number = self._clock(), 0
         while not self._stop.is_set():
-            began = self._clock()
+            began = time.thread_time()
             try:
                 rendered = self._renderer(next_t)
             except Exception:  # a simulator bug must not kill the camera silently
@@ -95,12 +101,12 @@ class D435iEmulator:
                 continue
             color, depth = rendered
             with self._push_lock, contextlib.suppress(RuntimeError):
-                self.camera.push("depth", next_t - DEVICE_BOOT_OFFSET_S, depth)
-                self.camera.push("color", next_t - DEVICE_BOOT_OFFSET_S, color)
+                self.camera.push("depth", next_t - DEVICE_BOOT_OFFSET_S, depth, number)
+                self.camera.push("color", next_t - DEVICE_BOOT_OFFSET_S, color, number)
                 self.frames_pushed += 1
-            self.render_s += self._clock() - began
-            next_t += period
-            behind = self._clock() - next_t
-            if behind > 5 * period:  # starved of CPU: skip frames, as a camera's frame drops would
-                next_t += period * int(behind / period)
+            self.render_cpu_s += time.thread_time() - began
+            next_t, number = next_t + period, number + 1
+            behind = int((self._clock() - next_t) / period)
+            if behind > 5:  # starved of CPU: skip frames (the numbering shows the gap, as a camera's would)
+                next_t, number = next_t + behind * period, number + behind
             self._stop.wait(max(0.0, next_t - self._clock()))
