@@ -100,10 +100,12 @@ class RobotRuntime:
         await self.motors.start()
         self.gpr = GprDriver(cfg.gpr_device, self.clock)
         await self.gpr.start()
+        imu_to_base = CameraMount(cfg.mount.camera_position_m, cfg.mount.camera_pitch_down_deg).rotation()
         if self.sim is not None:  # the emulated D435i, opened through the same source as a camera on USB
-            self.realsense = RealsenseDriver(cfg.realsense, self.clock, source_factory=self.sim.camera.source_factory)
+            self.realsense = RealsenseDriver(cfg.realsense, self.clock, source_factory=self.sim.camera.source_factory,
+                                             imu_to_base=imu_to_base)
         else:
-            self.realsense = RealsenseDriver(cfg.realsense, self.clock)
+            self.realsense = RealsenseDriver(cfg.realsense, self.clock, imu_to_base=imu_to_base)
         await self.realsense.start()
         self.vo.start(asyncio.get_running_loop())
         if self.worker is not None:

@@ -211,10 +211,13 @@ class SimRobot:
     # ----- the IMU ------------------------------------------------------------------------------
     async def feed_imu(self, period_s: float = 0.01) -> AsyncIterator[int]:
         """Push the IMU samples into the emulated D435i every period_s; yields the number pushed each time."""
+        to_camera = self.floor_camera.model.mount.rotation().T  # the D435i reports in its optical axes
         async for batch in self.imu_batches(period_s):
             began = time.thread_time()
             for sample in batch:
-                self.camera.push_imu(sample.t, sample.gyro, sample.accel)
+                gyro = None if sample.gyro is None else to_camera @ sample.gyro
+                accel = None if sample.accel is None else to_camera @ sample.accel
+                self.camera.push_imu(sample.t, gyro, accel)
             self.imu_emitted += len(batch)
             self.loop_cpu_s += time.thread_time() - began
             yield len(batch)
