@@ -73,7 +73,7 @@ def errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray) -> tuple[f
     return ate, abs(math.degrees(math.atan2(math.sin(yaw_err), math.cos(yaw_err))))
 
 
-async def bench(lines: int, length_m: float, speed_m_s: float) -> None:
+async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None = None) -> None:
     """Drive the survey in the daemon, then print the table."""
     cfg = load_config()
     survey = dataclasses.replace(cfg.survey, lines=lines, length_m=length_m, speed_m_s=speed_m_s)
@@ -142,6 +142,12 @@ async def bench(lines: int, length_m: float, speed_m_s: float) -> None:
         stop.set()
         await daemon
     wall = wall1 - wall0
+    if save:  # for a look at what the filter was given (pickle: our own file, read back by us only)
+        import pickle
+
+        with open(save, "wb") as f:
+            pickle.dump({"inputs": inputs, "truth_t": truth_t, "truth": truth, "start": start,
+                         "daemon_poses": daemon_poses}, f)
     t_ts, tr = np.array(truth_t), np.stack(truth)
     x0, y0 = float(start[0][0]), float(start[0][1])
     yaw0 = float(start[1])
@@ -215,8 +221,9 @@ def main() -> None:
     parser.add_argument("--lines", type=int, default=10)
     parser.add_argument("--length", type=float, default=2.0)
     parser.add_argument("--speed", type=float, default=0.1)
+    parser.add_argument("--save", help="pickle the filter's inputs, the truth and the daemon's poses here")
     args = parser.parse_args()
-    asyncio.run(bench(args.lines, args.length, args.speed))
+    asyncio.run(bench(args.lines, args.length, args.speed, args.save))
 
 
 if __name__ == "__main__":

@@ -197,6 +197,7 @@ class FusionConfig:
     init_duration_s: float = 0.5  # at rest: mean accel gives roll/pitch (and mean gyro the gyro bias)
     gyro_bias_from_rest: bool = True  # False: start from zero bias (when the start is not at rest)
     reorder_window_s: float = 0.1  # messages are processed this long after the newest one, in time order
+    max_imu_wait_s: float = 2.0  # a lagging IMU holds the others back this long at most (then: a dead IMU)
     propagation_step_s: float = 0.01  # IMU samples are averaged over this before each covariance step
     output_rate_hz: float = 100.0
     history_s: float = 900.0  # output poses kept for pose_at

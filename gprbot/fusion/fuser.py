@@ -6,6 +6,11 @@ timestamp order (IMU before wheels before VO at equal times). Anything that arri
 window is dropped and counted — it would otherwise need the past re-filtered. The price is that
 output poses trail the newest sensor data by the window (0.1 s by default); traces are tagged after
 the fact through `pose_at`, so this costs the survey nothing. Pure: time comes from the messages.
+
+The IMU is the filter's backbone and is never let fall behind the window: when its samples lag
+(a stalled event loop delivers the camera's backlog after fresher wheel readings), nothing later
+than the newest IMU sample is released until the IMU catches up — for at most `max_imu_wait_s`, so
+that a dead IMU does not freeze the poses.
 """
 
 from __future__ import annotations
@@ -58,6 +63,7 @@ class PoseFuser:
         self._heap: list[tuple[float, int, int, SensorMessage]] = []
         self._next_seq = 0  # ties in time and priority keep arrival order
         self._newest = -math.inf
+        self._newest_imu = -math.inf
         self._released = -math.inf
         self._init_gyro: list[NDArray[np.float64]] = []
         self._init_accel: list[NDArray[np.float64]] = []
@@ -75,7 +81,12 @@ class PoseFuser:
         heapq.heappush(self._heap, (key, _PRIORITY[type(message)], self._next_seq, message))
         self._next_seq += 1
         self._newest = max(self._newest, key)
-        return self._release(self._newest - self.config.reorder_window_s)
+        if isinstance(message, ImuSample):
+            self._newest_imu = max(self._newest_imu, key)
+        horizon = self._newest - self.config.reorder_window_s
+        if self._newest - self._newest_imu <= self.config.max_imu_wait_s:
+            horizon = min(horizon, self._newest_imu)
+        return self._release(horizon)
 
     def flush(self) -> list[Pose]:
         """Process everything still queued (end of a run)."""

@@ -28,7 +28,7 @@ from gprbot.messages import decode, encode, register_message
 _EKF_ARRAYS = ("p", "v", "R", "gyro_bias", "accel_bias", "wheel_scale", "clone_p", "clone_R", "gyro", "accel",
                "_sum_gyro", "_sum_accel")
 _EKF_SCALARS = ("t", "clone_t", "floor_z", "_held_since")
-_FUSER_SCALARS = ("_newest", "_released", "_init_start", "_next_tick")
+_FUSER_SCALARS = ("_newest", "_newest_imu", "_released", "_init_start", "_next_tick")
 
 
 @register_message
