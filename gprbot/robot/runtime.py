@@ -169,7 +169,7 @@ class RobotRuntime:
 
     async def _run_realsense(self, beat: Callable[[], None]) -> None:
         assert self.realsense is not None
-        next_health = self.clock()
+        next_health, vo_state = self.clock(), "starting"
         async for message in self.realsense.messages():
             beat()
             if isinstance(message, ImuSample):
@@ -181,9 +181,14 @@ class RobotRuntime:
             if self.cfg.realsense.record_frames:
                 self.recorder.append(message, message.t)
             now = self.clock()
-            if now >= next_health:  # VO health once a second, for the run log's reader
+            if now >= next_health:  # VO health once a second, for the run log's reader and the operator
                 next_health = now + 1.0
-                self.recorder.append(self.vo.health(), now)
+                health = self.vo.health()
+                self.recorder.append(health, now)
+                if health.state != vo_state and health.state != "starting":
+                    vo_state = health.state
+                    self.emit("vo tracking" if vo_state == "tracking"
+                              else f"vo lost ({health.last_failure}); pose from IMU + wheels until it tracks again")
 
     def _on_vo(self, measurement: VoMeasurement) -> None:
         """A VO measurement (on the loop, from the VO thread): into the filter and the run log."""

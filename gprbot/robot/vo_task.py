@@ -18,6 +18,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 
 from gprbot.drivers.realsense.driver import RawRgbdFrame
@@ -55,6 +56,9 @@ class VoTask:
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         """Start the VO thread; measurements go to `deliver` on `loop`."""
+        # One thread for OpenCV, process-wide: its worker pool would compete with the control loop for
+        # the NUC's cores, and VO's cost would hide outside the VO thread's CPU time that `health` reports.
+        cv2.setNumThreads(1)
         self._loop, self._stop = loop, False
         self._thread = threading.Thread(target=self._run, name="vo", daemon=True)
         self._thread.start()
