@@ -31,6 +31,11 @@ def test_the_filters_position_std_grows_without_vo_and_shrinks_with_it() -> None
     before, late_in_gap, after = (std[np.searchsorted(t, s)] for s in (gap[0], gap[1] - 0.1, gap[1] + 3.0))
     assert late_in_gap > 2.0 * before  # IMU + wheels alone: the uncertainty grows over the gap...
     assert after < late_in_gap  # ...and VO, back, brings it down (relative motion cannot undo all of it)
+    # Losing VO and finding it again moves no pose by a jump: beyond what the robot drove in each 10 ms
+    # step, no correction exceeds 3σ of the filter's own uncertainty of the moment (VO's return: ~1 mm).
+    steps = np.linalg.norm(np.diff(np.stack([p.position[:2] for p in poses]), axis=0), axis=1)
+    true_steps = np.linalg.norm(np.diff(truth.position(t)[:, :2], axis=0), axis=1)
+    assert np.all(np.abs(steps - true_steps) < 3.0 * std[1:])
     # Errors and uncertainty agree in size: the error stays within a few σ.
     error = np.linalg.norm(np.stack([p.position[:2] for p in poses]) - truth.position(t)[:, :2], axis=1)
     assert np.all(error[t > 2.0] < 4.0 * std[t > 2.0] + 1e-3)
