@@ -123,12 +123,14 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
         sampler = asyncio.create_task(sample())
         cpu0, wall0, proc0 = thread_cpu_s(), time.monotonic(), time.process_time()
         vo0, fusion0, render0 = rt.vo.health().cpu_s, rt.fusion.cpu_s, sim.camera.render_cpu_s
+        frames0, pushes0 = rt.vo.health().frames, rt.fusion.messages
         sim0, emitted0, inputs0 = sim.loop_cpu_s, sim.imu_emitted, len(inputs)
         run = rt.survey.start(survey)
         while run.state in ("starting", "running", "paused"):
             await asyncio.sleep(0.1)
         cpu1, wall1, proc1 = thread_cpu_s(), time.monotonic(), time.process_time()
         vo1, fusion1, render1 = rt.vo.health().cpu_s, rt.fusion.cpu_s, sim.camera.render_cpu_s
+        frames1, pushes1 = rt.vo.health().frames, rt.fusion.messages
         sim1, emitted1, inputs1 = sim.loop_cpu_s, sim.imu_emitted, len(inputs)
         named = {"vo": rt.vo.native_id, "render": sim.camera.native_id, "loop": threading.get_native_id()}
         done.set()
@@ -193,7 +195,11 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
         "sim_on_loop": sim1 - sim0, "others": others, "render": render1 - render0}.items()}
     robot = pct["loop"] - pct["sim_on_loop"] + pct["others"]
     print(f"CPU over the {wall:.0f} s survey, % of one core: process {pct['process']:.1f}")
-    print(f"  VO thread {pct['vo']:.1f} at {vo_health.rate_hz:.1f} fps")
+    vo_ms = 1e3 * (vo1 - vo0) / max(frames1 - frames0, 1)
+    print(f"  VO thread {pct['vo']:.1f} at {(frames1 - frames0) / wall:.1f} fps processed: {vo_ms:.2f} ms of CPU a "
+          f"frame, i.e. {3.0 * vo_ms:.1f} % of a core at 30 fps")
+    print(f"  the filter: {1e6 * (fusion1 - fusion0) / max(pushes1 - pushes0, 1):.1f} µs a message, "
+          f"{(pushes1 - pushes0) / wall:.0f} messages/s")
     print(f"  event-loop thread {pct['loop']:.1f}, of which the simulator's IMU synthesis and GPR forward model "
           f"{pct['sim_on_loop']:.1f} and the filter's pushes {pct['filter']:.1f}; other threads (librealsense "
           f"callbacks, the driver's handoff, run-log writes) {pct['others']:.1f}")
