@@ -144,8 +144,8 @@ class RealsenseConfig:
     playback: str | None = None  # a recording (.db3; legacy .bag) played once, as fast as consumed, instead of a device
     gyro_hz: int = 400
     accel_hz: int = 250
-    width: int = 640
-    height: int = 480
+    width: int = 424  # one mode for depth and colour; 424x240 keeps VO near 14 % of a core at 30 fps (640x480: 16 %)
+    height: int = 240
     fps: int = 30
     stall_timeout_s: float = 3.0  # no frame for this long: the camera counts as lost and is reopened
     reconnect_backoff_s: tuple[float, float] = (0.5, 8.0)  # first and longest wait between reopen attempts
