@@ -36,6 +36,8 @@ class Pose:
     t: float
     position: NDArray[np.float64]
     orientation: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+    position_std_m: float = 0.0  # the estimator's 1σ of the horizontal position (largest axis); 0: not given
+    yaw_std_rad: float = 0.0  # its 1σ of the heading
 
 
 @dataclass(frozen=True)

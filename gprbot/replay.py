@@ -22,6 +22,7 @@ from gprbot.config import Config, build_dataclass, to_dict
 from gprbot.errors import ConfigError, GprbotError
 from gprbot.fusion.frames import CameraMount, RgbdFrame, VoMeasurement
 from gprbot.fusion.fuser import PoseFuser
+from gprbot.fusion.snapshot import FusionSnapshot, restore
 from gprbot.gpr.bscan import BScan
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
 from gprbot.infer.run_files import write_survey_outputs
@@ -46,7 +47,8 @@ class RecordedRun:
     config: Config
     traces: list[Trace]
     poses: list[Pose]
-    pose_source: str  # "recorded": Pose messages in the log; "fused": PoseFuser over raw sensor data
+    pose_source: str  # "recorded": Pose messages in the log; "continued": the daemon's filter from its snapshot
+    # over the logged filter inputs (the daemon's poses to the bit); "fused": a new filter over raw sensor data
     windows: list[LineWindow]
     incomplete_lines: dict[int, str]  # line → why it is left out
     log_status: dict[str, Any]
@@ -60,9 +62,12 @@ def load_run(run_dir: Path, cfg: Config | None = None) -> RecordedRun:
     poses: list[Pose] = []
     sensors: list[Any] = []
     events: list[SurveyEvent] = []
+    snapshot: FusionSnapshot | None = None
     for record in reader:
         message = record.message
-        if isinstance(message, Trace):
+        if isinstance(message, FusionSnapshot) and snapshot is None:
+            snapshot = message
+        elif isinstance(message, Trace):
             traces.append(message)
         elif isinstance(message, Pose):
             poses.append(message)
@@ -72,7 +77,9 @@ def load_run(run_dir: Path, cfg: Config | None = None) -> RecordedRun:
                         | RgbdFrame | realsense.RawRgbdFrame):
             sensors.append(message)
     source = "recorded"
-    if not poses and sensors:
+    if not poses and snapshot is not None:
+        poses, source = continue_filter(snapshot, sensors, config), "continued"
+    elif not poses and sensors:
         poses, source = fuse_poses(sensors, config), "fused"
     poses = _strictly_increasing(poses)
     windows, incomplete = windows_from_events(events, poses)
@@ -89,6 +96,26 @@ def config_from_header(header: dict[str, Any]) -> Config:
     except ConfigError as exc:
         raise ConfigError(f"the run log's recorded config does not load here ({exc}); pass a config to replay") from exc
     return config
+
+
+def continue_filter(snapshot: FusionSnapshot, messages: Iterable[Any], cfg: Config) -> list[Pose]:
+    """The daemon's poses again: its filter restored from the snapshot, fed the logged inputs in log order.
+
+    The filter's inputs are IMU samples, encoder readings (as wheel speeds) and VO measurements; the
+    log's WheelSpeeds records are the motion loop's commands, not measurements, and raw frames (if
+    recorded) were already turned into the logged VO measurements. Nothing is flushed: the daemon's
+    filter ran on after the log closed, so the poses end where the daemon's had reached.
+    """
+    fuser, queued = restore(snapshot, cfg.fusion, cfg.motors)
+    poses: list[Pose] = []
+    for message in queued:
+        poses.extend(fuser.push(message))
+    for message in messages:
+        if isinstance(message, encoders.WheelEncoders):
+            poses.extend(fuser.push(message.wheel_speeds()))
+        elif isinstance(message, ImuSample | VoMeasurement):
+            poses.extend(fuser.push(message))
+    return poses
 
 
 def fuse_poses(messages: Iterable[Any], cfg: Config) -> list[Pose]:

@@ -50,7 +50,14 @@ def assemble_bscan(
         t0_ns=traces[0].t0_ns,
         positions=antenna_positions(tagged, lever_arm),
         times=times,
+        position_std_m=antenna_position_std(tagged, lever_arm),
     )
+
+
+def antenna_position_std(poses: Sequence[Pose], lever_arm: tuple[float, float, float]) -> np.ndarray:
+    """1σ of each antenna position: the base's, and the heading's swing of the lever arm, in quadrature."""
+    swing = float(np.hypot(lever_arm[0], lever_arm[1]))
+    return np.array([np.hypot(p.position_std_m, swing * p.yaw_std_rad) for p in poses])
 
 
 def split_by_line(traces: Sequence[Trace], windows: Sequence[LineWindow]) -> dict[int, list[Trace]]:

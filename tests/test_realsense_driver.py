@@ -154,6 +154,7 @@ async def test_live_path_pairs_frames_and_converts_on_the_minimum_delay(truth: T
     host0, latency, now = 100.0, 0.001, [0.0]
     driver = RealsenseDriver(
         RealsenseConfig(source="device", width=W, height=H, fps=30), clock=lambda: now[0], queue_size=4096,
+        frame_queue_size=30,  # the whole second is pushed at once, faster than any loop takes it
         source_factory=lambda cfg, sink, clock: RealsenseSource(cfg, sink, clock, device=camera.device),
     )
     events = [(t, "gyro", g) for t, g in zip(truth.gyro_t, truth.gyro, strict=True)]

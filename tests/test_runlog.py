@@ -15,7 +15,8 @@ import pytest
 
 import gprbot.drivers.motors.encoders
 import gprbot.drivers.realsense.driver
-import gprbot.fusion.frames  # noqa: F401 - these register their message types
+import gprbot.fusion.frames
+import gprbot.fusion.snapshot  # noqa: F401 - these register their message types
 from gprbot import runlog
 from gprbot.config import load_config, to_dict
 from gprbot.errors import DataFormatError, GprbotError
@@ -31,8 +32,14 @@ def _value_for(tp: Any, rng: np.random.Generator) -> Any:
     if typing.get_origin(tp) is np.ndarray:
         dtype = np.dtype(typing.get_args(typing.get_args(tp)[1])[0])
         return (rng.standard_normal((3, 4)) * 100).astype(dtype)
+    if typing.get_origin(tp) is dict:  # e.g. the fusion snapshot's named scalars
+        return {"key": _value_for(typing.get_args(tp)[1], rng)}
+    if typing.get_origin(tp) is list:
+        return [_value_for(typing.get_args(tp)[0], rng)]
+    if tp is Any:
+        return float(rng.standard_normal())
     return {float: float(rng.standard_normal()), int: int(rng.integers(-1000, 1000)), str: "ok ä",
-            bool: True}[tp]
+            bool: True, bytes: b"\x00\xffok"}[tp]
 
 
 def _example(cls: type[Any], rng: np.random.Generator) -> Any:

@@ -10,7 +10,8 @@ radius is r·(1 + s_i)), and a clone (p_c, R_c) of the pose at the current VO ke
 Error state (24, the vector filterpy's KalmanFilter holds): δp, δv, δθ (R = R̂ Exp(δθ)), δb_g, δb_a,
 δs, δp_c, δθ_c. Propagation is the standard ESKF (Solà, "Quaternion kinematics for the error-state
 Kalman filter", 2017, §5); VO is a relative-pose measurement between the clone and now (stochastic
-cloning, Roumeliotis & Burdick 2002); wheels measure the three rim speeds, 1st-order in δs.
+cloning, Roumeliotis & Burdick 2002); wheels measure the three rim speeds, 1st-order in δs, with
+their common mode (the rotation) projected out: see `update_wheels`.
 """
 
 from __future__ import annotations
@@ -29,6 +30,9 @@ from gprbot.motion.kinematics import KiwiKinematics, kiwi_matrix
 GRAVITY = np.array([0.0, 0.0, -9.80665])
 POS, VEL, ATT, BG, BA, WS, CPOS, CATT = (slice(i, i + 3) for i in range(0, 24, 3))
 DIM = 24
+# Rows orthogonal to (1, 1, 1): the three rim speeds' differential part. On a kiwi base the drive
+# directions sum to zero, so the common mode of the rims is −3·d·ω (rotation) and the rest is translation.
+_DIFFERENTIAL = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.sqrt([[2.0], [6.0]])
 
 
 class ErrorStateEkf:
@@ -59,7 +63,7 @@ class ErrorStateEkf:
         self._clone_map = np.eye(DIM)
         self._clone_map[CPOS] = np.eye(DIM)[POS]
         self._clone_map[CATT] = np.eye(DIM)[ATT]
-        self._gate = {m: float(chi2.ppf(c.gate_probability, m)) for m in (4, 5, 6)}
+        self._gate = {m: float(chi2.ppf(c.gate_probability, m)) for m in (3, 4, 6)}
         self.rejected_in_a_row: dict[str, int] = {"wheels": 0, "vo": 0}
 
     @property
@@ -135,12 +139,23 @@ class ErrorStateEkf:
         acc = self.R @ (self.accel - self.accel_bias) + GRAVITY
         return self.p + self.v * dt + 0.5 * acc * dt * dt, self.R @ exp_so3((self.gyro - self.gyro_bias) * dt)
 
-    def update_wheels(self, speeds: FloatArray) -> bool:
-        """Rim speeds r·ω_i of the three wheels, zero vertical body speed and the floor's height; False if gated.
+    def horizontal_std(self) -> tuple[float, float]:
+        """1σ of the horizontal position (m, the covariance ellipse's major axis) and of the yaw (rad)."""
+        P = self.kf.P
+        major = float(np.linalg.eigvalsh(P[:2, :2])[-1])
+        return math.sqrt(max(major, 0.0)), math.sqrt(max(float(P[ATT.start + 2, ATT.start + 2]), 0.0))
 
-        The last two are pseudo-measurements of a robot on a level slab: without them pitch and the
-        accelerometer's x bias cannot be told apart (the robot never turns), and a wrong pitch
-        would tilt every VO step into a climb.
+    def update_wheels(self, speeds: FloatArray) -> bool:
+        """The wheels' translation (rim speeds less their common mode), zero vertical body speed and the
+        floor's height; False if gated.
+
+        The common mode of the rims is the wheels' opinion of the turn rate, and it is the wrong one
+        whenever the true radii differ: commanded speeds without rotation then turn the robot, which
+        the gyro sees and the encoders cannot. Fused, it pulled the yaw back towards "no turn" (and
+        heading hold trusts that yaw), so yaw is left to the gyro (its bias from rest, and VO). The last
+        two rows are pseudo-measurements of a robot on a level slab: without them pitch and the
+        accelerometer's x bias cannot be told apart (the robot never turns), and a wrong pitch would
+        tilt every VO step into a climb.
         """
         c = self.config
         v_body = self.R.T @ self.v
@@ -148,21 +163,25 @@ class ErrorStateEkf:
         rim_true = self._drive @ np.array([v_body[0], v_body[1], omega_z])
         gain = 1.0 - self.wheel_scale
         directions = np.column_stack([self._drive[:, :2], np.zeros(3)])
-        H = np.zeros((5, DIM))
-        H[:3, VEL] = gain[:, None] * (directions @ self.R.T)
-        H[:3, ATT] = gain[:, None] * (directions @ skew(v_body))
-        H[:3, BG.start + 2] = gain * self.kinematics.base_radius_m
-        H[:3, WS] = np.diag(-rim_true)
-        H[3, VEL] = self.R[:, 2]
-        H[3, ATT] = skew(v_body)[2]
-        H[4, POS.start + 2] = 1.0
+        rims = np.zeros((3, DIM))
+        rims[:, VEL] = gain[:, None] * (directions @ self.R.T)
+        rims[:, ATT] = gain[:, None] * (directions @ skew(v_body))
+        rims[:, BG.start + 2] = gain * self.kinematics.base_radius_m
+        rims[:, WS] = np.diag(-rim_true)
         rim = np.asarray(speeds, dtype=np.float64) * self.kinematics.wheel_radius_m
-        measured = np.concatenate([rim, [0.0, self.floor_z]])
-        predicted = np.concatenate([gain * rim_true, [v_body[2], self.p[2]]])
-        variance = np.concatenate([c.wheel_rim_speed_std_m_s**2 + (c.wheel_slip_std * rim) ** 2,
-                                   [c.vertical_speed_std_m_s**2, c.floor_height_std_m**2]])
-        rows = slice(0, 5) if c.floor_height_std_m > 0.0 else slice(0, 4)
-        return self._update("wheels", (measured - predicted)[rows], H[rows], np.diag(variance[rows]))
+        rim_variance = np.diag(c.wheel_rim_speed_std_m_s**2 + (c.wheel_slip_std * rim) ** 2)
+        H = np.zeros((4, DIM))
+        H[:2] = _DIFFERENTIAL @ rims
+        H[2, VEL] = self.R[:, 2]
+        H[2, ATT] = skew(v_body)[2]
+        H[3, POS.start + 2] = 1.0
+        measured = np.concatenate([_DIFFERENTIAL @ rim, [0.0, self.floor_z]])
+        predicted = np.concatenate([_DIFFERENTIAL @ (gain * rim_true), [v_body[2], self.p[2]]])
+        R_meas = np.zeros((4, 4))
+        R_meas[:2, :2] = _DIFFERENTIAL @ rim_variance @ _DIFFERENTIAL.T
+        R_meas[2, 2], R_meas[3, 3] = c.vertical_speed_std_m_s**2, c.floor_height_std_m**2
+        rows = 4 if c.floor_height_std_m > 0.0 else 3
+        return self._update("wheels", (measured - predicted)[:rows], H[:rows], R_meas[:rows, :rows])
 
     def update_vo(self, m: VoMeasurement) -> str:
         """Apply a keyframe-relative VO motion; 'applied', 'rejected' (gated) or 'skipped' (no clone at t_ref)."""

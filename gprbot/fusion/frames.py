@@ -118,3 +118,24 @@ class VoMeasurement:
     inliers: int = 0
     new_keyframe: bool = False
     reason: str = ""
+
+
+@register_message
+@dataclass(frozen=True)
+class VoHealth:
+    """VO as `status` and the run log show it (at host time t)."""
+
+    t: float
+    state: str  # "starting" (no frame yet), "tracking", "lost"
+    frames: int
+    dropped: int  # frames dropped from the queue because VO fell behind
+    lost_frames: int
+    measurements: int
+    features: int  # corners of the current keyframe (0 when lost)
+    tracked: int  # of those, tracked into the last frame
+    inlier_ratio: float  # PnP inliers / tracked, last frame
+    rate_hz: float
+    latency_ms_median: float
+    latency_ms_max: float
+    cpu_s: float  # the VO thread's CPU time
+    last_failure: str

@@ -6,6 +6,11 @@ timestamp order (IMU before wheels before VO at equal times). Anything that arri
 window is dropped and counted — it would otherwise need the past re-filtered. The price is that
 output poses trail the newest sensor data by the window (0.1 s by default); traces are tagged after
 the fact through `pose_at`, so this costs the survey nothing. Pure: time comes from the messages.
+
+The IMU is the filter's backbone and is never let fall behind the window: when its samples lag
+(a stalled event loop delivers the camera's backlog after fresher wheel readings), nothing later
+than the newest IMU sample is released until the IMU catches up — for at most `max_imu_wait_s`, so
+that a dead IMU does not freeze the poses.
 """
 
 from __future__ import annotations
@@ -14,7 +19,6 @@ import heapq
 import math
 from collections import deque
 from dataclasses import dataclass
-from itertools import count
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,6 +48,7 @@ class FusionStats:
     vo_skipped: int = 0
     vo_lost: int = 0
     late_dropped: int = 0
+    vo_late_dropped: int = 0  # of late_dropped, VO measurements (VO slower than the reorder window)
 
 
 class PoseFuser:
@@ -56,8 +61,9 @@ class PoseFuser:
         self.stats = FusionStats()
         self._initial = (np.asarray(initial_position, dtype=np.float64), initial_yaw_rad)
         self._heap: list[tuple[float, int, int, SensorMessage]] = []
-        self._seq = count()
+        self._next_seq = 0  # ties in time and priority keep arrival order
         self._newest = -math.inf
+        self._newest_imu = -math.inf
         self._released = -math.inf
         self._init_gyro: list[NDArray[np.float64]] = []
         self._init_accel: list[NDArray[np.float64]] = []
@@ -70,10 +76,17 @@ class PoseFuser:
         key = message.t - self.config.wheel_speed_delay_s if isinstance(message, WheelSpeeds) else message.t
         if key < self._released:
             self.stats.late_dropped += 1
+            self.stats.vo_late_dropped += isinstance(message, VoMeasurement)
             return []
-        heapq.heappush(self._heap, (key, _PRIORITY[type(message)], next(self._seq), message))
+        heapq.heappush(self._heap, (key, _PRIORITY[type(message)], self._next_seq, message))
+        self._next_seq += 1
         self._newest = max(self._newest, key)
-        return self._release(self._newest - self.config.reorder_window_s)
+        if isinstance(message, ImuSample):
+            self._newest_imu = max(self._newest_imu, key)
+        horizon = self._newest - self.config.reorder_window_s
+        if self._newest - self._newest_imu <= self.config.max_imu_wait_s:
+            horizon = min(horizon, self._newest_imu)
+        return self._release(horizon)
 
     def flush(self) -> list[Pose]:
         """Process everything still queued (end of a run)."""
@@ -132,9 +145,10 @@ class PoseFuser:
         """The output poses due up to t (extrapolated from the state, which trails by < one IMU step)."""
         ekf, out = self.ekf, []
         period = 1.0 / self.config.output_rate_hz
+        position_std, yaw_std = ekf.horizontal_std()
         while self._next_tick <= t:
             position, attitude = ekf.extrapolate(self._next_tick)
-            out.append(Pose(self._next_tick, position, matrix_to_quat(attitude)))
+            out.append(Pose(self._next_tick, position, matrix_to_quat(attitude), position_std, yaw_std))
             self._next_tick = round((self._next_tick + period) / period) * period
         self.history.extend(out)
         return out

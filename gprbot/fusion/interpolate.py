@@ -34,4 +34,6 @@ def interpolate_poses(poses: Sequence[Pose], t: NDArray[np.float64]) -> list[Pos
     pos = np.stack([np.interp(t, times, positions[:, k]) for k in range(3)], axis=1)
     slerp = Slerp(times, Rotation.from_quat(np.stack([p.orientation for p in poses])))
     quats = slerp(t).as_quat()
-    return [Pose(float(ti), pos[i], quats[i]) for i, ti in enumerate(t)]
+    position_std = np.interp(t, times, [p.position_std_m for p in poses])
+    yaw_std = np.interp(t, times, [p.yaw_std_rad for p in poses])
+    return [Pose(float(ti), pos[i], quats[i], float(position_std[i]), float(yaw_std[i])) for i, ti in enumerate(t)]

@@ -47,6 +47,7 @@ class BScan:
     positions: FloatArray
     times: FloatArray
     processing: tuple[str, ...] = ()
+    position_std_m: FloatArray | None = None  # per trace, 1σ of its horizontal position (pose filter); None: unknown
 
     def along_track_m(self) -> FloatArray:
         """Horizontal distance of every trace from the first one, along the line (m)."""

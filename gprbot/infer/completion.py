@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import colorsys
 import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
-from gprbot.infer.pipe_fit import PipeFit, extend_axis, extension_length, fit_pipe
+from gprbot.infer.pipe_fit import SEGMENT_TOLERANCE_M, PipeFit, extend_axis, extension_length, fit_pipe
 from gprbot.infer.pipe_track import track_pipes
 from gprbot.infer.polyline import closest_points_of_segments, drop_collinear_vertices, drop_repeated_vertices
 from gprbot.infer.register import SliceCloud
@@ -44,6 +45,7 @@ class PipeModel:
     confidence: float
     n_slices: int
     ends_on: tuple[int | None, int | None] = (None, None)
+    pose_std_m: float = 0.0  # RMS 1σ of the antenna positions on the lines that saw it (in `confidence`)
 
 
 @dataclass(frozen=True)
@@ -100,16 +102,24 @@ def _end_joins(
     return joins
 
 
-def _pipe_model(axis: NDArray[np.float64], fit: PipeFit, ends_on: tuple[int | None, int | None]) -> PipeModel:
+def _pipe_model(axis: NDArray[np.float64], fit: PipeFit, ends_on: tuple[int | None, int | None],
+                pose_std_m: float = 0.0) -> PipeModel:
     return PipeModel(
         axis=axis,
         radius_m=fit.radius_m,
         depth_of_cover_m=float(np.min(-axis[:, 2])) - fit.radius_m,
         diameter_m=2.0 * fit.radius_m,
-        confidence=fit.confidence,
+        confidence=fit.confidence * pose_confidence(pose_std_m),
         n_slices=fit.n_slices,
         ends_on=ends_on,
+        pose_std_m=pose_std_m,
     )
+
+
+def pose_confidence(pose_std_m: float) -> float:
+    """The share of a pipe's confidence its slices' position uncertainty leaves: a slice placed σ off
+    scatters its centre like a fit residual of σ, so it is weighed as the fit weighs residuals."""
+    return math.exp(-((pose_std_m / SEGMENT_TOLERANCE_M) ** 2))
 
 
 def fit_pipes(slices: Sequence[SliceCloud], cfg: ReconstructionConfig) -> list[PipeModel]:
@@ -132,13 +142,15 @@ def fit_pipes(slices: Sequence[SliceCloud], cfg: ReconstructionConfig) -> list[P
         for f in fits
     ]
     joins = _end_joins(fits, axes, frame)
+    line_std = {s.line: s.pose_std_m for s in seen}
     pipes = []
-    for fit, axis, (start, end) in zip(fits, axes, joins, strict=True):
+    for track, fit, axis, (start, end) in zip(tracks, fits, axes, joins, strict=True):
+        pose_std = float(np.sqrt(np.mean([line_std.get(b.line, 0.0) ** 2 for b in track])))
         first = start[1] if start is not None else axis[0]
         last = end[1] if end is not None else axis[-1]
         joined = drop_collinear_vertices(drop_repeated_vertices(np.vstack([first, fit.inner_axis, last])))
         ends_on = (start[0] if start else None, end[0] if end else None)
-        pipes.append(_pipe_model(joined, fit, ends_on))
+        pipes.append(_pipe_model(joined, fit, ends_on, pose_std))
     return pipes
 
 

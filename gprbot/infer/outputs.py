@@ -88,6 +88,7 @@ def pipes_document(reconstruction: Reconstruction, meta: Mapping[str, Any]) -> d
                 "depth_of_cover_m": round(pipe.depth_of_cover_m, _DECIMALS),
                 "diameter_m": round(pipe.diameter_m, _DECIMALS),
                 "confidence": round(pipe.confidence, 4),
+                "pose_std_m": round(pipe.pose_std_m, _DECIMALS),
                 "n_slices": pipe.n_slices,
                 "ends_on": {"start": pipe.ends_on[0], "end": pipe.ends_on[1]},
                 "colour": "#{:02x}{:02x}{:02x}".format(*(int(c) for c in colours[index])),
@@ -117,6 +118,7 @@ def read_pipes_json(path: str | os.PathLike[str]) -> list[PipeModel]:
                 confidence=float(p["confidence"]),
                 n_slices=int(p["n_slices"]),
                 ends_on=(p["ends_on"]["start"], p["ends_on"]["end"]),
+                pose_std_m=float(p.get("pose_std_m", 0.0)),  # absent in files from before it was written
             )
             for p in document["pipes"]
         ]

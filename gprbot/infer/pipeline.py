@@ -84,7 +84,9 @@ def interpret_line(
         section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
     section = replace(section, rebars=line_rebars(processed, cfg, velocity))
     cols = processed.position_at(section.x_m)
-    return LineResult(line, processed, section, register_slice(line, section.mask, section.z_m, cols))
+    std = processed.position_std_m
+    pose_std = float(np.sqrt(np.mean(np.square(std)))) if std is not None and std.size else 0.0
+    return LineResult(line, processed, section, register_slice(line, section.mask, section.z_m, cols, pose_std))
 
 
 def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detection, ...]:

@@ -34,6 +34,7 @@ class SliceCloud:
     points: NDArray[np.float64]
     direction: NDArray[np.float64]
     pixel_pitch_m: tuple[float, float] | None = None
+    pose_std_m: float = 0.0  # RMS 1σ of the line's antenna positions (from the pose filter); 0: unknown
 
 
 def antenna_positions(poses: Sequence[Pose], lever_arm: tuple[float, float, float]) -> NDArray[np.float64]:
@@ -76,6 +77,7 @@ def register_slice(
     mask: NDArray[np.bool_],
     z_m: NDArray[np.float64],
     column_positions: NDArray[np.float64],
+    pose_std_m: float = 0.0,
 ) -> SliceCloud:
     """Register a cross-section mask in 3D: pixel (iz, ix) → (column x, column y, −z_m[iz])."""
     mask = np.asarray(mask, dtype=bool)
@@ -99,7 +101,8 @@ def register_slice(
     points = np.column_stack([columns[ix, 0], columns[ix, 1], -z_m[iz]])
     pitch_along = float(np.median(np.linalg.norm(np.diff(columns[:, :2], axis=0), axis=1)))
     pitch_depth = float(np.median(np.abs(np.diff(z_m)))) if nz > 1 else 0.0
-    return SliceCloud(line=line, points=points, direction=direction, pixel_pitch_m=(pitch_along, pitch_depth))
+    return SliceCloud(line=line, points=points, direction=direction, pixel_pitch_m=(pitch_along, pitch_depth),
+                      pose_std_m=pose_std_m)
 
 
 def farthest_point_indices(points: NDArray[np.float64], n: int, rng: np.random.Generator) -> NDArray[np.intp]:

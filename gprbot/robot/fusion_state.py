@@ -8,10 +8,13 @@ the survey tags traces with `poses_between`.
 from __future__ import annotations
 
 import asyncio
+import time
+from collections import deque
 from collections.abc import Callable
 
 from gprbot.config import Config
 from gprbot.fusion.fuser import PoseFuser, SensorMessage
+from gprbot.fusion.snapshot import FusionSnapshot, take_snapshot
 from gprbot.messages import ImuSample, Pose
 
 MAX_BATCH = 20  # messages pushed into the filter before the task lets the rest of the loop run
@@ -26,13 +29,20 @@ class FusionState:
         self.initial_yaw_rad = yaw
         self.gyro_z_rad_s = 0.0
         self.messages = 0
-        self._queue: asyncio.Queue[SensorMessage] = asyncio.Queue()
+        self.cpu_s = 0.0  # the filter's own CPU time (its pushes), for the benchmark and `status`
+        self._pending: deque[SensorMessage] = deque()
+        self._arrived = asyncio.Event()
 
     def submit(self, message: SensorMessage) -> None:
         """Queue one sensor message for the filter (never blocks)."""
         if isinstance(message, ImuSample) and message.gyro is not None:
             self.gyro_z_rad_s = float(message.gyro[2])
-        self._queue.put_nowait(message)
+        self._pending.append(message)
+        self._arrived.set()
+
+    def snapshot(self, t: float) -> FusionSnapshot:
+        """The filter's state and the messages still waiting for it (a run log's first record, for replay)."""
+        return take_snapshot(t, self.fuser, self._pending)
 
     @property
     def ready(self) -> bool:
@@ -58,24 +68,29 @@ class FusionState:
         return [p for p in self.fuser.history if t0 - margin_s <= p.t <= t1 + margin_s]
 
     async def run(self, beat: Callable[[], None]) -> None:
-        """The fusion task: push queued messages into the filter as they come."""
+        """The fusion task: push submitted messages into the filter, in submission order, as they come."""
         while True:
             beat()
-            try:
-                async with asyncio.timeout(0.5):  # not wait_for: on 3.11 it can swallow a cancel
-                    message = await self._queue.get()
-            except TimeoutError:
-                continue
-            self.fuser.push(message)
-            self.messages += 1
-            pushed = 1
-            while not self._queue.empty():
-                if pushed % MAX_BATCH == 0:
+            if not self._pending:
+                self._arrived.clear()
+                try:
+                    async with asyncio.timeout(0.5):  # not wait_for: on 3.11 it can swallow a cancel
+                        await self._arrived.wait()
+                except TimeoutError:
+                    continue
+            began = time.thread_time()
+            pushed = 0
+            while self._pending:
+                if pushed and pushed % MAX_BATCH == 0:
                     # A backlog (after a stall, under CPU load) is drained in slices: one long drain held
                     # the loop for over a second, so the encoders' serial replies timed out and the
                     # wheels were stopped mid-line, which made survey results depend on the machine's load.
+                    self.cpu_s += time.thread_time() - began
                     beat()
                     await asyncio.sleep(0)
-                self.fuser.push(self._queue.get_nowait())
+                    began = time.thread_time()
+                self.fuser.push(self._pending.popleft())
                 self.messages += 1
                 pushed += 1
+            self.cpu_s += time.thread_time() - began
+            await asyncio.sleep(0)  # let the producers run between batches

@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gprbot.errors import DriverError, GprbotError
+from gprbot.fusion.frames import VoHealth
+from gprbot.fusion.fuser import FusionStats
 from gprbot.shell.commands import ErrorCode, Jog, Reset, Status, Stop, SurveyControl, SurveyStart
 from gprbot.shell.handler import RobotCommand, SessionInfo
 from gprbot.shell.protocol import Reply
@@ -146,6 +148,11 @@ class RobotHandler:
                 h = driver.health()
                 lines.append(f"driver {h.name} {'connected' if h.connected else 'DISCONNECTED'} rate_hz "
                              f"{h.rate_hz:.1f} drops {h.drops} errors {h.errors}")
+        if rt.realsense is not None:
+            for name, h in rt.realsense.health().items():
+                lines.append(f"driver realsense.{name} {'connected' if h.connected else 'DISCONNECTED'} rate_hz "
+                             f"{h.rate_hz:.1f} drops {h.drops} errors {h.errors}")
+        lines.append(vo_status_line(rt.vo.health(), rt.fusion.fuser.stats))
         if rt.worker is not None:
             w = rt.worker.health()
             lines.append(f"worker {'alive' if w.alive else 'down'} busy {w.busy} jobs {w.jobs_done} "
@@ -156,3 +163,14 @@ class RobotHandler:
         elif rt.web_error:
             lines.append(f"web DOWN {rt.web_error}")
         return lines
+
+
+def vo_status_line(vo: VoHealth, stats: FusionStats) -> str:
+    """VO's health and what the filter did with it, on one `status` line."""
+    line = (f"vo {vo.state} features {vo.features} tracked {vo.tracked} inlier_ratio {vo.inlier_ratio:.2f} "
+            f"rate_hz {vo.rate_hz:.1f} latency_ms {vo.latency_ms_median:.0f} max {vo.latency_ms_max:.0f} "
+            f"frames {vo.frames} dropped {vo.dropped} lost_frames {vo.lost_frames} "
+            f"fused {stats.vo_updates} rejected {stats.vo_rejected} late {stats.late_dropped}")
+    if vo.state == "lost":
+        line += f" (pose from IMU + wheels: {vo.last_failure})"
+    return line

@@ -24,6 +24,7 @@ from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.realsense.driver import RealsenseDriver
 from gprbot.errors import ConfigError, DriverError
+from gprbot.fusion.frames import CameraMount, VoMeasurement
 from gprbot.infer.worker import InferenceWorker
 from gprbot.messages import ImuSample, WheelSpeeds
 from gprbot.motion.heading import HeadingHoldDrive, HeadingHoldGains
@@ -32,6 +33,7 @@ from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
 from gprbot.robot.sim_robot import SimRobot, is_simulated, start_pose
 from gprbot.robot.survey_runner import SurveyRunner
+from gprbot.robot.vo_task import VoTask
 from gprbot.shell.handler import EventBus
 from gprbot.shell.server import SerialShell, ShellServer
 
@@ -83,7 +85,9 @@ class RobotRuntime:
         self.motors: MotorDriver | None = None
         self.gpr: GprDriver | None = None
         self.realsense: RealsenseDriver | None = None
-        self.camera_frames = 0  # RGB-D frames received (VO is not wired into the daemon yet)
+        self.camera_frames = 0  # RGB-D frames received from the RealSense driver
+        mount = CameraMount(cfg.mount.camera_position_m, cfg.mount.camera_pitch_down_deg)
+        self.vo = VoTask(mount, self._on_vo, clock=clock)
         self.supervisor: Supervisor | None = None
         self.estopped = False
         self._estop_stop: asyncio.Future[None] | None = None
@@ -107,9 +111,14 @@ class RobotRuntime:
         await self.motors.start()
         self.gpr = GprDriver(cfg.gpr_device, self.clock)
         await self.gpr.start()
-        if self.sim is None:
-            self.realsense = RealsenseDriver(cfg.realsense, self.clock)
-            await self.realsense.start()
+        imu_to_base = CameraMount(cfg.mount.camera_position_m, cfg.mount.camera_pitch_down_deg).rotation()
+        if self.sim is not None:  # the emulated D435i, opened through the same source as a camera on USB
+            self.realsense = RealsenseDriver(cfg.realsense, self.clock, source_factory=self.sim.camera.source_factory,
+                                             imu_to_base=imu_to_base)
+        else:
+            self.realsense = RealsenseDriver(cfg.realsense, self.clock, imu_to_base=imu_to_base)
+        await self.realsense.start()
+        self.vo.start(asyncio.get_running_loop())
         if self.worker is not None:
             await self.worker.start()
         await self.start_shell()
@@ -120,6 +129,7 @@ class RobotRuntime:
             ("motors", self.motors.close if self.motors is not None else None),
             ("gpr", self.gpr.stop if self.gpr is not None else None),
             ("realsense", self.realsense.stop if self.realsense is not None else None),
+            ("vo", self._stop_vo),
             ("worker", self.worker.close if self.worker is not None else None),
             ("sim", self.sim.close if self.sim is not None else None),
         ]
@@ -160,10 +170,9 @@ class RobotRuntime:
             tasks.append(TaskSpec("web", self._run_web, watchdog_s=5.0, restart="always", critical=False))
         if self.cfg.shell.serial_console:
             tasks.append(TaskSpec("shell.serial", self._run_serial_shell, watchdog_s=None, restart="always"))
+        tasks.insert(0, TaskSpec("realsense", self._run_realsense, watchdog_s=None, restart="always"))
         if self.sim is not None:
             tasks.insert(0, TaskSpec("sim.imu", self._run_sim_imu, watchdog_s=1.0, restart="always"))
-        else:
-            tasks.insert(0, TaskSpec("realsense", self._run_realsense, watchdog_s=None, restart="always"))
         if self.worker is not None:
             tasks.append(TaskSpec("worker", self._run_worker_watch, watchdog_s=5.0, restart="always",
                                   critical=False))
@@ -171,22 +180,41 @@ class RobotRuntime:
 
     # ----- tasks --------------------------------------------------------------------------------
     async def _run_sim_imu(self, beat: Callable[[], None]) -> None:
+        """The simulated IMU: samples of the true motion into the emulated D435i (read back by `realsense`)."""
         assert self.sim is not None
-        async for batch in self.sim.imu_batches():
+        async for _ in self.sim.feed_imu():
             beat()
-            for sample in batch:
-                self.fusion.submit(sample)
-                self.recorder.append(sample, sample.t)
 
     async def _run_realsense(self, beat: Callable[[], None]) -> None:
         assert self.realsense is not None
+        next_health, vo_state = self.clock(), "starting"
         async for message in self.realsense.messages():
             beat()
             if isinstance(message, ImuSample):
                 self.fusion.submit(message)
                 self.recorder.append(message, message.t)
-            else:
-                self.camera_frames += 1
+                continue
+            self.camera_frames += 1
+            self.vo.offer(message)
+            if self.cfg.realsense.record_frames:
+                self.recorder.append(message, message.t)
+            now = self.clock()
+            if now >= next_health:  # VO health once a second, for the run log's reader and the operator
+                next_health = now + 1.0
+                health = self.vo.health()
+                self.recorder.append(health, now)
+                if health.state != vo_state and health.state != "starting":
+                    vo_state = health.state
+                    self.emit("vo tracking" if vo_state == "tracking"
+                              else f"vo lost ({health.last_failure}); pose from IMU + wheels until it tracks again")
+
+    def _on_vo(self, measurement: VoMeasurement) -> None:
+        """A VO measurement (on the loop, from the VO thread): into the filter and the run log."""
+        self.fusion.submit(measurement)
+        self.recorder.append(measurement, measurement.t)
+
+    async def _stop_vo(self) -> None:
+        await asyncio.to_thread(self.vo.stop)
 
     async def _run_encoders(self, beat: Callable[[], None]) -> None:
         motors = self._motors()

@@ -225,6 +225,7 @@ class SurveyRunner:
         pruned = await asyncio.to_thread(prune_runs, Path(self.cfg.runs_dir), self.cfg.retention, {run.name})
         if pruned:
             self.emit(f"retention: deleted {len(pruned)} old runs ({', '.join(r.name for r in pruned)})")
+        self.recorder.append(self.fusion.snapshot(self.clock()), self.clock())  # replay continues this filter
         await self._beating(self._wait_fusion(), beat)
         if run.abort_reason is None:
             run.state = "running"

@@ -73,8 +73,12 @@ class FloorCamera:
         half = 0.5 * self.model.exposure_s
         times = np.array([t - half, t, t + half])
         R, p = truth.rotation(times), truth.position(times)
-        blur = self._image_motion(R[0], p[0], R[2], p[2])
-        return self.render(t, R[1], p[1], blur)
+        return self.render_moving(t, (R[0], p[0]), (R[1], p[1]), (R[2], p[2]))
+
+    def render_moving(self, t: float, start: tuple[FloatArray, FloatArray], middle: tuple[FloatArray, FloatArray],
+                      end: tuple[FloatArray, FloatArray]) -> RgbdFrame:
+        """The frame exposed around t from the base poses (R, p) at the exposure's start, middle and end."""
+        return self.render(t, middle[0], middle[1], self._image_motion(start[0], start[1], end[0], end[1]))
 
     def render(self, t: float, R_odom_base: FloatArray, p_odom_base: FloatArray,
                blur_px: tuple[float, float] = (0.0, 0.0)) -> RgbdFrame:

@@ -4,6 +4,9 @@ The blocking SDK (`source.RealsenseSource`) runs in librealsense's threads and i
 on the event loop; its readings cross into the loop through a bounded handoff. Device timestamps are
 converted once, here, to the host monotonic clock (`clock.DeviceClock`). A live camera that is unplugged
 or stalls is reopened with exponential backoff; a recording plays once, as fast as it is consumed.
+The D435i reports its IMU in the depth camera's optical axes (x right, y down, z forward, librealsense's
+convention); with `imu_to_base` (R_base_camera of the mount) the driver turns the samples into
+base_link axes once, here, as the filter expects them.
 """
 
 from __future__ import annotations
@@ -85,17 +88,21 @@ class RealsenseDriver:
         cfg: RealsenseConfig,
         clock: Callable[[], float] = time.monotonic,
         *,
-        queue_size: int = 128,
+        queue_size: int = 4096,  # readings: live, 6 s of IMU at 650 Hz before one is lost to a stalled loop
+        frame_queue_size: int = 4,  # RGB-D frames among them, live (the oldest gives way)
         stall_timeout_s: float = 3.0,
         backoff_initial_s: float = 0.5,
         backoff_max_s: float = 8.0,
         jump_threshold_s: float = 0.1,
         source_factory: SourceFactory = RealsenseSource,
+        imu_to_base: NDArray[np.float64] | None = None,
     ):
         self.cfg, self._clock, self._factory = cfg, clock, source_factory
         self.queue_size, self.stall_timeout_s = queue_size, stall_timeout_s
+        self.frame_queue_size = frame_queue_size
         self.backoff_initial_s, self.backoff_max_s = backoff_initial_s, backoff_max_s
         self.jump_threshold_s = jump_threshold_s
+        self._imu_to_base = None if imu_to_base is None else np.asarray(imu_to_base, dtype=np.float64)
         self.reconnects = 0
         self._session = 0  # bumped when a source is given up: readings of older sources are stale
         self._playback = cfg.playback is not None
@@ -121,7 +128,8 @@ class RealsenseDriver:
         """Open the camera or recording; raises DriverError saying what to check if it cannot."""
         if self._handoff is not None:
             raise DriverError("the RealSense driver is already started")
-        self._handoff = Handoff(asyncio.get_running_loop(), self.queue_size, block=self._playback)
+        self._handoff = Handoff(asyncio.get_running_loop(), self.queue_size, block=self._playback,
+                                max_frames=self.frame_queue_size)
         try:
             await self._open_source()
         except BaseException:
@@ -251,9 +259,8 @@ class RealsenseDriver:
         if isinstance(reading, MotionReading):
             t = clock.to_host(reading.device_ms, reading.host_s, reading.stream)
             self._count(reading.stream, reading.number, t)
-            message: Message = (
-                ImuSample(t=t, gyro=reading.xyz) if reading.stream == "gyro" else ImuSample(t=t, accel=reading.xyz)
-            )
+            xyz = reading.xyz if self._imu_to_base is None else self._imu_to_base @ reading.xyz
+            message: Message = ImuSample(t=t, gyro=xyz) if reading.stream == "gyro" else ImuSample(t=t, accel=xyz)
         else:
             t = clock.to_host(reading.device_ms, reading.host_s, "rgbd")
             self._count("depth", reading.depth_number, t)
