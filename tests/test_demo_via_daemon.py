@@ -11,9 +11,12 @@ from plyfile import PlyData
 
 from gprbot.cli import main
 
+# 15 fps halves the emulated camera's rendering and VO: the subject here is the operator's path (daemon,
+# shell, pull), run in real time on a 2-core CI machine beside the rest of the suite.
 SHORT_SURVEY = """
 survey: {{lines: 3, spacing_m: 0.1, length_m: 0.6, speed_m_s: 0.2, settle_s: 0.3, start_xy_m: [0.1, 0.0]}}
 sim: {{scene: paper_slab, poses: noise}}
+realsense: {{fps: 15}}
 web: {{port: 0}}
 runs_dir: {runs}
 """

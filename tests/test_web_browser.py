@@ -274,7 +274,8 @@ def test_estop_click_commands_every_wheel_to_zero_within_100_ms_in_the_median(co
             raise
         latencies.append(stopped - clicked_mono)
         legs.append((received - clicked_mono, stopped - received))
-        assert rt.estopped
+        # The latch is set on the loop right after the fast path commands the wheels: wait for it, briefly.
+        wait_for(lambda: rt.estopped, 2, f"the e-stop latched (trial {trial})")
     console.shot("estop_latched.png")
     assert len(latencies) >= ESTOP_TRIALS // 2, f"{lost} of {ESTOP_TRIALS} trials lost to motor-link faults"
     median, worst = statistics.median(latencies), max(latencies)
