@@ -109,17 +109,22 @@ async def _scripted(host: str, port: int, token: str | None, commands: Sequence[
         if token is not None:
             await conn.authenticate(token)
         for line in commands:
-            try:
-                if line.split()[:1] == ["pull"]:
-                    await _pull_here(conn, line)
-                    continue
-                reply = await conn.request(line)
-            except ShellCommandError as exc:
-                reply = exc.reply
-            print_reply(reply)
-            if not reply.ok:
+            if not await _run_line(conn, line):
                 return 1
     return 0
+
+
+async def _run_line(conn: ShellConnection, line: str) -> bool:
+    """Send one command line (a `pull` fetches here) and print its reply; whether it succeeded."""
+    try:
+        if line.split()[:1] == ["pull"]:
+            await _pull_here(conn, line)
+            return True
+        reply = await conn.request(line)
+    except ShellCommandError as exc:
+        reply = exc.reply
+    print_reply(reply)
+    return reply.ok
 
 
 async def _interactive(host: str, port: int, token: str | None) -> int:
@@ -141,16 +146,7 @@ async def _interactive(host: str, port: int, token: str | None) -> int:
                 continue
             if words[0] in ("quit", "exit"):
                 break
-            status = 0
-            try:
-                if words[0] == "pull":
-                    await _pull_here(conn, line)
-                    continue
-                reply = await conn.request(line)
-            except ShellCommandError as exc:
-                reply = exc.reply
-            print_reply(reply)
-            status = 0 if reply.ok else 1
+            status = 0 if await _run_line(conn, line) else 1
     _save_history()
     return status
 
