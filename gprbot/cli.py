@@ -19,13 +19,13 @@ from gprbot import __version__, progress
 from gprbot.errors import GprbotError, UsageError
 
 if TYPE_CHECKING:
+    from gprbot.apps.offline_demo import DemoResult
     from gprbot.config import Config
-    from gprbot.demo import DemoResult
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    from gprbot.apps.offline_demo import run_demo
     from gprbot.config import load_config
-    from gprbot.demo import run_demo
     from gprbot.sim.scene import builtin_scene_names, load_scene
 
     cfg = load_config(args.config)
@@ -74,10 +74,10 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
     import asyncio
     import dataclasses
 
-    from gprbot.demo import survey_region
+    from gprbot.apps.daemon_demo import survey_via_shell
+    from gprbot.apps.offline_demo import survey_region
     from gprbot.evaluation import compare_to_truth, format_truth_table, within_bounds
     from gprbot.infer.outputs import read_pipes_json
-    from gprbot.robot.shell_demo import survey_via_shell
     from gprbot.sim.scene import load_scene
 
     if args.scene:
@@ -123,7 +123,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_interpret(args: argparse.Namespace) -> int:
-    from gprbot.interpret_file import interpret_file
+    from gprbot.apps.interpret_file import interpret_file
 
     out = Path(args.out) if args.out else None
     config = None
@@ -131,7 +131,7 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
         from gprbot.config import load_config
 
         config = load_config(args.config)
-    from gprbot.interpret_file import default_out_dir, interpret_file_json
+    from gprbot.apps.interpret_file import default_out_dir, interpret_file_json
 
     out = out or default_out_dir(Path(args.file), config)
     report = interpret_file(
@@ -176,8 +176,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from gprbot.apps.replay import replay_run
     from gprbot.config import load_config
-    from gprbot.replay import replay_run
 
     run_dir = Path(args.run)
     out = Path(args.out) if args.out else run_dir / "replay"

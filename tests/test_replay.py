@@ -11,11 +11,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from gprbot.apps.replay import fuse_poses, load_run, record_simulated_survey, replay_run, windows_from_events
 from gprbot.config import load_config
 from gprbot.errors import GprbotError
 from gprbot.infer.pipeline import reconstruct_survey
 from gprbot.messages import ImuSample, Pose, WheelSpeeds
-from gprbot.replay import fuse_poses, load_run, record_simulated_survey, replay_run, windows_from_events
 from gprbot.runlog import SurveyEvent, segment_path
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene

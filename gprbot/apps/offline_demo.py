@@ -1,4 +1,5 @@
-"""`gprbot demo`: a whole simulated survey, from driving the lines to pipes.json, checked against truth."""
+"""`gprbot demo --offline`: a whole simulated survey processed directly (no daemon), from driving the lines to
+pipes.json, checked against truth."""
 
 from __future__ import annotations
 

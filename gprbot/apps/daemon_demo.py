@@ -1,5 +1,5 @@
-"""`gprbot demo`: the operator's path — start the daemon on the simulated robot, drive it over
-its TCP shell (`survey start`, events, `files`, `pull`), pull the results, stop it as systemd would."""
+"""`gprbot demo` (the default, through the daemon): the operator's path — start the daemon on the simulated
+robot, drive it over its TCP shell (`survey start`, events, `files`, `pull`), pull the results, stop it as systemd would."""
 
 from __future__ import annotations
 
