@@ -1,5 +1,6 @@
 """`gprbot demo` (the default, through the daemon): the operator's path — start the daemon on the simulated
-robot, drive it over its TCP shell (`survey start`, events, `files`, `pull`), pull the results, stop it as systemd would."""
+robot, drive it over its TCP shell (`survey start`, events, `files`, `pull`), pull the results,
+stop it as systemd would."""
 
 from __future__ import annotations
 
