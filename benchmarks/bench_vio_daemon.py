@@ -3,7 +3,7 @@
 The daemon runs in this process on the simulated robot: the D435i is a librealsense software device
 opened by the real RealsenseDriver (IMU 400 + 250 Hz, rendered RGB-D at 30 fps), VO runs in its thread,
 the RoboClaw and GPR emulators speak their protocols. The floor has the simulator's texture-poor patch
-across the first lines (VO loses tracking there) and the wheels slip (sim_robot). The survey is driven
+across the first lines (VO loses tracking there) and the wheels slip (simulated.robot). The survey is driven
 by the daemon with heading hold on the fused yaw. Recorded meanwhile: the true pose (20 Hz), every
 message the filter was given (in its order), a 10 ms ticker's lag, and per-thread CPU times.
 

@@ -76,9 +76,9 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
 
     from gprbot.apps.daemon_demo import survey_via_shell
     from gprbot.apps.offline_demo import survey_region
-    from gprbot.evaluation import compare_to_truth, format_truth_table, within_bounds
-    from gprbot.infer.outputs import read_pipes_json
+    from gprbot.outputs.pipes_json import read_pipes_json
     from gprbot.sim.scene import load_scene
+    from gprbot.simulated.evaluation import compare_to_truth, format_truth_table, within_bounds
 
     if args.scene:
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, scene=args.scene))

@@ -10,9 +10,9 @@ import numpy as np
 from gprbot.errors import InterpretationError
 from gprbot.fusion.interpolate import interpolate_poses
 from gprbot.gpr.bscan import BScan
-from gprbot.infer.register import antenna_positions
 from gprbot.messages import Pose, Trace
 from gprbot.motion.planner import SurveyPlan
+from gprbot.reconstruct.register import antenna_positions
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gprbot.errors import InterpretationError
-from gprbot.infer.register import antenna_positions, register_slice, resample_cloud
 from gprbot.messages import Pose
+from gprbot.reconstruct.register import antenna_positions, register_slice, resample_cloud
 
 
 def yaw_quaternion(deg: float) -> np.ndarray:

@@ -15,9 +15,9 @@ from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.messages import ImuSample, WheelSpeeds
 from gprbot.motion.kinematics import KiwiKinematics, planar_pose_message
 from gprbot.motion.planner import Segment
-from gprbot.robot.sim_robot import GRAVITY_M_S2, SimRobot, is_simulated, start_pose
 from gprbot.robot.tracking import tracking_velocity
 from gprbot.sim.forward import simulate_bscan
+from gprbot.simulated.robot import GRAVITY_M_S2, SimRobot, is_simulated, start_pose
 
 
 def test_the_default_config_is_the_simulated_robot_starting_with_the_antenna_on_the_start_point() -> None:

@@ -19,7 +19,7 @@ from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.pipeline import SurveyResult, interpret_line, reconstruct_survey
 from gprbot.infer.worker import InferenceWorker
 from gprbot.sim.scene import load_scene
-from gprbot.sim.survey_sim import simulate_survey
+from gprbot.simulated.survey import simulate_survey
 from gprbot.survey import assemble_bscan, line_windows, split_by_line
 
 

@@ -28,9 +28,9 @@ import torch
 from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
-from gprbot.infer.completion import geometric_completion
 from gprbot.infer.gprnet import INPUT_NAME
 from gprbot.progress import track
+from gprbot.reconstruct.completion import geometric_completion
 from gprbot.sim.truth import sample_pipe_interiors
 from training.chamfer import cloud_metrics
 from training.pointcloud_data import CACHE_DIR, DENSE_POINTS, load_split, survey_slices

@@ -24,8 +24,8 @@ from scipy import ndimage
 
 from gprbot.errors import ConfigError
 from gprbot.infer.gprnet import normalisation
-from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
 from gprbot.progress import track
+from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 from gprbot.sim.truth import cross_section_mask, sample_pipe_interiors
 from training.random_scenes import CASES, line_antenna_xy, recorded_positions, scene_for_seed, split_seeds
 

@@ -34,7 +34,7 @@ async def survey_via_shell(
     `on_console` gets the web console's URL once it listens (before the survey starts), if it is enabled."""
     stop = asyncio.Event()
     started: list[RobotRuntime] = []
-    daemon = asyncio.create_task(serve(cfg, shell_port=0, stop=stop, on_ready=started.append))  # type: ignore[arg-type]
+    daemon = asyncio.create_task(serve(cfg, shell_port=0, stop=stop, on_ready=started.append))
     done: asyncio.Future[str] = asyncio.get_running_loop().create_future()
 
     def event(text: str) -> None:

@@ -18,7 +18,7 @@ from gprbot.gpr.formats import Radargram, read_radargram
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.infer.outputs import write_json_atomic
+from gprbot.outputs.pipes_json import write_json_atomic
 
 __all__ = [
     "GSSI_ANTENNAS", "antenna_frequency_mhz", "file_bscan", "gpr_config_for", "interpret_dzt", "interpret_file",

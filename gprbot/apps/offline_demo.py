@@ -11,14 +11,14 @@ import numpy as np
 
 from gprbot import __version__, progress
 from gprbot.config import Config, to_dict
-from gprbot.evaluation import PipeMatch, compare_to_truth, format_truth_table, within_bounds
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
-from gprbot.infer.run_files import write_survey_outputs
+from gprbot.outputs.report_html import write_report_safely
+from gprbot.outputs.run_dir import write_survey_outputs
 from gprbot.sim.scene import Scene
-from gprbot.sim.survey_sim import simulate_survey
 from gprbot.sim.truth import cross_section_mask
+from gprbot.simulated.evaluation import PipeMatch, compare_to_truth, format_truth_table, within_bounds
+from gprbot.simulated.survey import simulate_survey
 from gprbot.survey import assemble_bscan, line_windows, split_by_line
-from gprbot.web.report import write_report_safely
 
 
 @dataclass(frozen=True)

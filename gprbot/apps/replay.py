@@ -25,15 +25,15 @@ from gprbot.fusion.fuser import PoseFuser
 from gprbot.fusion.snapshot import FusionSnapshot, restore
 from gprbot.gpr.bscan import BScan
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
-from gprbot.infer.run_files import write_survey_outputs
 from gprbot.messages import ImuSample, Pose, Trace, WheelSpeeds
+from gprbot.outputs.run_dir import write_survey_outputs
 from gprbot.runlog import RunLogWriter, SurveyEvent, make_run_header
 from gprbot.runlog_reader import RunLogReader
 from gprbot.survey import LineWindow, assemble_bscan, line_windows, split_by_line
 
 if TYPE_CHECKING:
     from gprbot.sim.scene import Scene
-    from gprbot.sim.survey_sim import SimulatedSurvey
+    from gprbot.simulated.survey import SimulatedSurvey
 
 log = logging.getLogger(__name__)
 POSE_LATENCY_S = 0.1  # a fused pose is published one reorder window after its time (fusion.fuser)
@@ -222,7 +222,7 @@ def survey_messages(sim: Any) -> list[tuple[float, Any]]:
 def record_simulated_survey(cfg: Config, scene: Scene, run_dir: Path, created_wall_s: float = 0.0,
                             segment_bytes: int = 64 * 1024 * 1024) -> SimulatedSurvey:
     """Simulate a survey and record it as the daemon would: traces, estimated poses, line events."""
-    from gprbot.sim.survey_sim import simulate_survey
+    from gprbot.simulated.survey import simulate_survey
 
     sim = simulate_survey(cfg, scene)
     timed = survey_messages(sim)

@@ -22,10 +22,10 @@ from gprbot.gpr.interpret import CrossSection, estimate_velocity, interpret_bsca
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import CrossingHint
-from gprbot.infer.completion import Reconstruction, geometric_completion
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.migrationnet import MigrationNetInterpreter
-from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
+from gprbot.reconstruct.completion import Reconstruction, geometric_completion
+from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 
 
 @dataclass(frozen=True)

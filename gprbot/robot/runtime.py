@@ -12,14 +12,13 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from gprbot.config import Config
-from gprbot.daemon import TaskSpec
 from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.realsense.driver import RealsenseDriver
@@ -31,21 +30,28 @@ from gprbot.motion.heading import HeadingHoldDrive, HeadingHoldGains
 from gprbot.motion.jog import JogController
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
-from gprbot.robot.sim_robot import SimRobot, is_simulated, start_pose
 from gprbot.robot.survey_runner import SurveyRunner
 from gprbot.robot.vo_task import VoTask
 from gprbot.shell.handler import EventBus
 from gprbot.shell.server import SerialShell, ShellServer
-
-if TYPE_CHECKING:
-    from gprbot.daemon import Supervisor
-    from gprbot.web.server import WebConsole
+from gprbot.simulated.robot import SimRobot, is_simulated, start_pose
+from gprbot.supervisor import Supervisor, TaskSpec
 
 log = logging.getLogger(__name__)
 CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
 ENCODER_PERIOD_S = 0.02
 DEFAULT_SHELL_PORT = 7878
 ESTOP_REPEAT_S = 0.5  # while latched, a repeated e-stop re-sends the stop at most this often
+
+
+class ConsoleInfo(Protocol):
+    """What `status` shows of a front end the daemon runs over this runtime (the web console)."""
+
+    @property
+    def url(self) -> str: ...
+
+    @property
+    def browser_count(self) -> int: ...
 
 
 class RobotRuntime:
@@ -80,7 +86,7 @@ class RobotRuntime:
         self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
         self.token_file = token_file
         self.shell: ShellServer | None = None
-        self.web: WebConsole | None = None
+        self.web: ConsoleInfo | None = None  # set by the web console task while it listens
         self.web_error: str | None = None  # why the web console is not listening, if it is not
         self.motors: MotorDriver | None = None
         self.gpr: GprDriver | None = None
@@ -155,8 +161,9 @@ class RobotRuntime:
         await self.survey.shutdown()
         self.emit("daemon stopping")
 
-    def task_table(self) -> list[TaskSpec]:
-        """The daemon's declared tasks: name, coroutine, watchdog deadline, restart policy."""
+    def task_table(self, frontends: Sequence[TaskSpec] = ()) -> list[TaskSpec]:
+        """The daemon's declared tasks: name, coroutine, watchdog deadline, restart policy; `frontends`
+        (the web console, built by the daemon) run after the TCP shell."""
         tasks = [
             TaskSpec("fusion", self.fusion.run, watchdog_s=2.0, restart="always"),
             TaskSpec("motors.encoders", self._run_encoders, watchdog_s=1.0, restart="always"),
@@ -166,8 +173,7 @@ class RobotRuntime:
             TaskSpec("recorder", self.recorder.run, watchdog_s=5.0, restart="always"),
             TaskSpec("shell.tcp", self._run_shell, watchdog_s=None, restart="always"),
         ]
-        if self.cfg.web.enabled:
-            tasks.append(TaskSpec("web", self._run_web, watchdog_s=5.0, restart="always", critical=False))
+        tasks.extend(frontends)
         if self.cfg.shell.serial_console:
             tasks.append(TaskSpec("shell.serial", self._run_serial_shell, watchdog_s=None, restart="always"))
         tasks.insert(0, TaskSpec("realsense", self._run_realsense, watchdog_s=None, restart="always"))
@@ -303,11 +309,6 @@ class RobotRuntime:
         """The TCP shell's task: the server (bound at start) serves on the loop; closed in close_devices."""
         beat()
         await asyncio.Event().wait()
-
-    async def _run_web(self, beat: Callable[[], None]) -> None:
-        from gprbot.web.server import serve_console
-
-        await serve_console(self, beat, token_file=self.token_file)
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
         from gprbot.robot.handler import RobotHandler

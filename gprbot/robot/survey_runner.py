@@ -25,18 +25,18 @@ from gprbot.config import Config, SurveyConfig, to_dict
 from gprbot.errors import GprbotError
 from gprbot.gpr.bscan import BScan
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
-from gprbot.infer.run_files import write_survey_outputs
 from gprbot.infer.worker import InferenceWorker
 from gprbot.infer.worker_process import LineJobResult
 from gprbot.messages import Trace
 from gprbot.motion.planner import Segment, SurveyPlan, plan_survey
+from gprbot.outputs.report_html import write_report_safely
+from gprbot.outputs.run_dir import write_survey_outputs
 from gprbot.retention import prune_runs
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
 from gprbot.robot.tracking import tracking_velocity
 from gprbot.runlog import SurveyEvent, make_run_header
 from gprbot.survey import assemble_bscan
-from gprbot.web.report import write_report_safely
 
 log = logging.getLogger(__name__)
 STEP_S = 0.02  # how often the runner re-checks pause/abort while a segment runs

@@ -95,9 +95,9 @@ def fused_trajectory(
     """
     # Imported here: the fusion stack renders camera frames and is only needed for this pose source.
     from gprbot.fusion.fuser import PoseFuser
-    from gprbot.fusion.sim_runs import arrival_order, simulate_run
     from gprbot.fusion.so3 import yaw_of
     from gprbot.sim.motion_truth import survey_ground_truth
+    from gprbot.simulated.sensor_runs import arrival_order, simulate_run
 
     truth = survey_ground_truth(plan, (lever_arm[0], lever_arm[1]), seed=seed)
     run = simulate_run("survey", truth, seed=seed, motors=motors)

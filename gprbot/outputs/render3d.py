@@ -8,8 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.infer.completion import Reconstruction, pipe_colors
 from gprbot.plotting import new_figure, save_png
+from gprbot.reconstruct.completion import Reconstruction, pipe_colors
 
 MAX_POINTS = 6000  # enough to show the rods; more only slows matplotlib's 3D scatter
 

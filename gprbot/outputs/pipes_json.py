@@ -12,8 +12,8 @@ import numpy as np
 
 from gprbot.atomic_files import write_bytes_atomic
 from gprbot.errors import DataFormatError
-from gprbot.infer.completion import PipeModel, Reconstruction, pipe_colors
-from gprbot.infer.polyline import polyline_length
+from gprbot.geometry import polyline_length
+from gprbot.reconstruct.completion import PipeModel, Reconstruction, pipe_colors
 
 PIPES_FORMAT = "gprbot-pipes"
 PIPES_VERSION = 1

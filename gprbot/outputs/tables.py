@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 
 from gprbot.atomic_files import write_bytes_atomic
-from gprbot.exports.georef import Georeference
-from gprbot.infer.completion import PipeModel
+from gprbot.geometry import polyline_length
 from gprbot.infer.pipeline import SurveyResult
-from gprbot.infer.polyline import polyline_length
+from gprbot.outputs.georef import Georeference
+from gprbot.reconstruct.completion import PipeModel
 
 
 def _earth_columns(georef: Georeference | None, prefix: str, point: np.ndarray) -> dict[str, float]:

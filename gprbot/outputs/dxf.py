@@ -20,8 +20,8 @@ from ezdxf.enums import TextEntityAlignment
 from numpy.typing import NDArray
 
 from gprbot.atomic_files import write_bytes_atomic
-from gprbot.exports.georef import Georeference
-from gprbot.infer.completion import PipeModel, pipe_colors
+from gprbot.outputs.georef import Georeference
+from gprbot.reconstruct.completion import PipeModel, pipe_colors
 
 APP_ID = "GPRBOT"
 LABEL_HEIGHT_M = 0.025  # 2.5 cm text: readable at 1:20, the scale of a slab survey

@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Any
 
 from gprbot.atomic_files import write_bytes_atomic
-from gprbot.web.results import run_document
+from gprbot.outputs.run_document import run_document
 
 log = logging.getLogger(__name__)
-STATIC_DIR = Path(__file__).parent / "static"
+STATIC_DIR = Path(__file__).parents[1] / "web" / "static"  # the console's own page, inlined
 THREE_JS = STATIC_DIR / "vendor" / "three-0.170.0.module.min.js"
 REPORT_NAME = "report.html"
 PAGE_SCRIPTS = ("draw.js", "viewer.js", "results.js")

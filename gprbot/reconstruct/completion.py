@@ -18,12 +18,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
-from gprbot.infer.pipe_fit import SEGMENT_TOLERANCE_M, PipeFit, extend_axis, extension_length, fit_pipe
-from gprbot.infer.pipe_track import track_pipes
-from gprbot.infer.polyline import closest_points_of_segments, drop_collinear_vertices, drop_repeated_vertices
-from gprbot.infer.register import SliceCloud
-from gprbot.infer.rods import sample_rods
-from gprbot.infer.slice_blobs import SurveyFrame, split_slice, survey_frame
+from gprbot.geometry import closest_points_of_segments, drop_collinear_vertices, drop_repeated_vertices
+from gprbot.reconstruct.pipe_fit import SEGMENT_TOLERANCE_M, PipeFit, extend_axis, extension_length, fit_pipe
+from gprbot.reconstruct.pipe_track import track_pipes
+from gprbot.reconstruct.register import SliceCloud
+from gprbot.reconstruct.rods import sample_rods
+from gprbot.reconstruct.slice_blobs import SurveyFrame, split_slice, survey_frame
 
 JOIN_MARGIN_M = 0.01  # a pipe end runs into another pipe when its axis passes within R + this of it, ...
 JOIN_SLACK_PER_M = 0.05  # ... plus this per metre it was extended (a direction from few centres is a few % off)

@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.exports.georef import Georeference
-from gprbot.infer.completion import PipeModel, pipe_colors
-from gprbot.infer.outputs import write_json_atomic
-from gprbot.infer.polyline import polyline_length
+from gprbot.geometry import polyline_length
+from gprbot.outputs.georef import Georeference
+from gprbot.outputs.pipes_json import write_json_atomic
+from gprbot.reconstruct.completion import PipeModel, pipe_colors
 
 _DEGREE_DECIMALS = 8  # 1e-8° ≈ 1 mm
 _HEIGHT_DECIMALS = 4

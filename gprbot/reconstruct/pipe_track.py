@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from gprbot.infer.slice_blobs import Blob, SurveyFrame, make_blob
+from gprbot.reconstruct.slice_blobs import Blob, SurveyFrame, make_blob
 
 MIN_CROSSING_DEG = 25.0  # pipes cross the lines at ≥ ~30°; a little slack for noise
 MAX_COT = 1.0 / math.tan(math.radians(MIN_CROSSING_DEG))

@@ -9,10 +9,18 @@ from typing import Any
 import numpy as np
 
 from gprbot.config import GeoreferenceConfig, build_dataclass
-from gprbot.exports.dxf import write_dxf
-from gprbot.exports.geojson import write_geojson
-from gprbot.exports.georef import Georeference
-from gprbot.exports.tables import (
+from gprbot.gpr.bscan import BScan
+from gprbot.gpr.formats.export import export_survey_lines
+from gprbot.gpr.render import write_bscan_png, write_cross_section_png
+from gprbot.infer.pipeline import SurveyResult
+from gprbot.outputs.depth_slices import depth_bands, depth_slices, render_depth_slices
+from gprbot.outputs.dxf import write_dxf
+from gprbot.outputs.geojson import write_geojson
+from gprbot.outputs.georef import Georeference
+from gprbot.outputs.pipes_json import write_json_atomic, write_pipes_json
+from gprbot.outputs.ply import write_ply
+from gprbot.outputs.render3d import render_3d
+from gprbot.outputs.tables import (
     DETECTION_COLUMNS,
     PIPE_COLUMNS,
     detection_rows,
@@ -20,16 +28,8 @@ from gprbot.exports.tables import (
     pipe_rows,
     write_csv,
 )
-from gprbot.gpr.bscan import BScan
-from gprbot.gpr.formats.export import export_survey_lines
-from gprbot.gpr.render import write_bscan_png, write_cross_section_png
-from gprbot.infer.completion import pipe_colors
-from gprbot.infer.depth_slices import depth_bands, depth_slices, render_depth_slices
-from gprbot.infer.outputs import write_json_atomic, write_pipes_json
-from gprbot.infer.pipeline import SurveyResult
-from gprbot.infer.ply import write_ply
-from gprbot.infer.render3d import render_3d
-from gprbot.infer.topdown import render_topdown
+from gprbot.outputs.topdown import render_topdown
+from gprbot.reconstruct.completion import pipe_colors
 
 SPARSE_PLY = "sparse.ply"
 DENSE_PLY = "dense.ply"

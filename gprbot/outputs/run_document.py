@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from gprbot.errors import DataFormatError
-from gprbot.infer.ply import read_ply
+from gprbot.outputs.ply import read_ply
 from gprbot.shell import runfiles
 from gprbot.web.live import b64
 

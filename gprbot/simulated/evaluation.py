@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.infer.completion import PipeModel
+from gprbot.reconstruct.completion import PipeModel
 from gprbot.sim.scene import Pipe, Scene
 
 MATCH_GATE_M = 0.15  # a found pipe further than this (mean horizontal distance) matches nothing

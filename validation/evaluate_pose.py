@@ -1,6 +1,6 @@
 """Evaluation of pose estimation on simulated runs: ATE and yaw drift per estimator → JSON + markdown.
 
-    python -m gprbot.fusion.evaluate --out DIR [--quick] [--seed N]
+    python -m validation.evaluate_pose --out DIR [--quick] [--seed N]
 
 Runs a 10-line survey (SurveyConfig defaults: 2 m × 0.9 m, 0.1 m/s) and a 5-minute random jog, with
 the simulated D435i (IMU + rendered RGB-D → VO) and wheel encoders, and compares the fused filter
@@ -27,11 +27,11 @@ import numpy as np
 
 from gprbot.config import SurveyConfig
 from gprbot.fusion.interpolate import interpolate_poses
-from gprbot.fusion.sim_runs import Estimates, SimulatedRun, run_estimators, simulate_run
 from gprbot.fusion.so3 import quat_to_matrix, yaw_of
 from gprbot.messages import Pose
 from gprbot.motion.planner import plan_survey
 from gprbot.sim.motion_truth import GroundTruth, jog_ground_truth, survey_ground_truth
+from gprbot.simulated.sensor_runs import Estimates, SimulatedRun, run_estimators, simulate_run
 
 METHODS = ("fused", "vo", "wheels", "imu")
 LABELS = {"fused": "fused (IMU + VO + wheels)", "vo": "VO only", "wheels": "wheel odometry only",

@@ -16,14 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.infer.polyline import (
+from gprbot.geometry import (
     closest_points_of_lines,
     distance_to_line,
     distance_to_polyline,
     drop_repeated_vertices,
     fit_line,
 )
-from gprbot.infer.slice_blobs import Blob, SurveyFrame
+from gprbot.reconstruct.slice_blobs import Blob, SurveyFrame
 
 SEGMENT_TOLERANCE_M = 0.01  # blob centres are good to a few mm; more than this off a line is a bend
 MIN_CORNER_DEG = 3.0

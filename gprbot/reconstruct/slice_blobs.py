@@ -15,7 +15,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from gprbot.infer.register import SliceCloud
+from gprbot.reconstruct.register import SliceCloud
 
 BLOB_LINK_M = 0.02  # mask pixels closer than this belong to the same blob
 MIN_BLOB_POINTS = 3  # smaller blobs are speckle, not a pipe

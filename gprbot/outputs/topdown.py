@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.atomic_files import write_bytes_atomic
-from gprbot.infer.completion import Reconstruction, pipe_colors
+from gprbot.reconstruct.completion import Reconstruction, pipe_colors
 
 MAP_SIDE_PX = 900  # the longer side of the map area
 MARGIN_PX = 56
