@@ -36,11 +36,10 @@ from benchmarks.machine import machine_description
 from gprbot.config import load_config
 from gprbot.daemon import serve
 from gprbot.fusion.baselines import vo_only, wheel_only
-from gprbot.fusion.frames import VoMeasurement
 from gprbot.fusion.fuser import PoseFuser
 from gprbot.fusion.interpolate import interpolate_poses
 from gprbot.fusion.so3 import quat_to_matrix, yaw_of
-from gprbot.messages import ImuSample, Pose, WheelSpeeds
+from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
 from gprbot.robot.runtime import RobotRuntime
 
 

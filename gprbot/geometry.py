@@ -1,11 +1,21 @@
-"""Small 3-D geometry on lines, segments and polylines used by the pipe fit (pure numpy)."""
+"""The robot's and the pipes' geometry, once: lines, segments and polylines, the camera's mount and intrinsics.
+
+Frames (REP-103/105): `base_link` is x forward, y left, z up; the camera's optical frame is z out of
+the lens, x right, y down (image axes). A D435i colour stream with depth aligned to it shares one
+pinhole model, so one set of intrinsics serves both images.
+"""
 
 from __future__ import annotations
 
 import itertools
+import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+
+from gprbot.errors import ConfigError
+from gprbot.messages import CameraIntrinsics
 
 _EPS = 1e-12
 
@@ -116,3 +126,43 @@ def drop_collinear_vertices(polyline: NDArray[np.float64], max_turn_deg: float =
             kept.append(vertex)
     kept.append(polyline[-1])
     return np.array(kept)
+
+
+# ----- the camera on the robot ----------------------------------------------------------------------
+# D435i RGB sensor (OV2740) at its native 1920×1080: fx ≈ fy ≈ 1380 px, 69.4° × 42.5° field of view
+# (Intel D400 series datasheet, rev. 2020). Smaller modes are binned/cropped from it.
+_NATIVE_WIDTH, _NATIVE_HEIGHT, _NATIVE_FOCAL_PX = 1920, 1080, 1380.0
+
+
+def d435i_intrinsics(width: int = 424, height: int = 240) -> CameraIntrinsics:
+    """Intrinsics of a D435i colour mode: the native sensor scaled to `height`, cropped to `width`."""
+    if width <= 0 or height <= 0:
+        raise ConfigError(f"realsense.width/height: expected positive sizes, got {width}×{height}")
+    scale = height / _NATIVE_HEIGHT
+    if _NATIVE_WIDTH * scale + 0.5 < width:
+        raise ConfigError(f"realsense.width: {width} px is wider than the D435i colour sensor allows at {height} px")
+    focal = _NATIVE_FOCAL_PX * scale
+    return CameraIntrinsics(width, height, focal, focal, (width - 1) / 2.0, (height - 1) / 2.0)
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """Where the camera sits on the robot: optical centre in base_link (m), pitched down by pitch_deg."""
+
+    position_m: tuple[float, float, float] = (0.20, 0.0, 0.30)
+    pitch_down_deg: float = 60.0
+
+    def rotation(self) -> NDArray[np.float64]:
+        """R_base_camera: columns are the optical x (right), y (down), z (forward-down) axes in base_link."""
+        a = math.radians(self.pitch_down_deg)
+        x_axis = np.array([0.0, -1.0, 0.0])
+        z_axis = np.array([math.cos(a), 0.0, -math.sin(a)])
+        y_axis = np.cross(z_axis, x_axis)
+        return np.column_stack([x_axis, y_axis, z_axis])
+
+    def transform(self) -> NDArray[np.float64]:
+        """T_base_camera as a 4×4 homogeneous matrix."""
+        T = np.eye(4)
+        T[:3, :3] = self.rotation()
+        T[:3, 3] = self.position_m
+        return T

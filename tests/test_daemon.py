@@ -20,8 +20,8 @@ from plyfile import PlyData
 
 from gprbot.config import Config, load_config
 from gprbot.daemon import serve
+from gprbot.messages import SurveyEvent
 from gprbot.robot.runtime import RobotRuntime
-from gprbot.runlog import SurveyEvent
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sdnotify import SdNotifier, watchdog_interval_s
 from gprbot.shell.protocol import ReplyReader, ServerEvent, ServerReply

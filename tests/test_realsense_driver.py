@@ -15,11 +15,11 @@ import pytest
 
 from gprbot.config import RealsenseConfig
 from gprbot.drivers.realsense.clock import FramePairer
-from gprbot.drivers.realsense.driver import Handoff, RawRgbdFrame, RealsenseDriver
+from gprbot.drivers.realsense.driver import Handoff, RealsenseDriver
 from gprbot.drivers.realsense.recording import SoftwareD435i, write_recording
 from gprbot.drivers.realsense.source import MotionReading, Reading, RealsenseSource, SourceEvent
 from gprbot.errors import DriverError
-from gprbot.messages import ImuSample, decode, encode
+from gprbot.messages import ImuSample, RawRgbdFrame, decode, encode
 
 rs = pytest.importorskip("pyrealsense2")
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from gprbot.config import RealsenseConfig
-from gprbot.drivers.realsense.driver import RawRgbdFrame, RealsenseDriver
-from gprbot.fusion.frames import CameraMount
-from gprbot.messages import ImuSample
+from gprbot.drivers.realsense.driver import RealsenseDriver
+from gprbot.geometry import CameraMount
+from gprbot.messages import ImuSample, RawRgbdFrame
 
 rs = pytest.importorskip("pyrealsense2")
 

@@ -15,8 +15,8 @@ from gprbot.apps.replay import fuse_poses, load_run, record_simulated_survey, re
 from gprbot.config import load_config
 from gprbot.errors import GprbotError
 from gprbot.infer.pipeline import reconstruct_survey
-from gprbot.messages import ImuSample, Pose, WheelSpeeds
-from gprbot.runlog import SurveyEvent, segment_path
+from gprbot.messages import ImuSample, Pose, SurveyEvent, WheelSpeeds
+from gprbot.runlog import segment_path
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene
 from gprbot.survey import assemble_bscan, line_windows, split_by_line

@@ -15,19 +15,28 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-import gprbot.drivers.motors.encoders as encoders
-import gprbot.drivers.realsense.driver as realsense  # registers RawRgbdFrame for the reader
 from gprbot import __version__, progress
 from gprbot.config import Config, build_dataclass, to_dict
 from gprbot.errors import ConfigError, GprbotError
-from gprbot.fusion.frames import CameraMount, RgbdFrame, VoMeasurement
 from gprbot.fusion.fuser import PoseFuser
-from gprbot.fusion.snapshot import FusionSnapshot, restore
+from gprbot.fusion.snapshot import restore
+from gprbot.geometry import CameraMount
 from gprbot.gpr.bscan import BScan
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
-from gprbot.messages import ImuSample, Pose, Trace, WheelSpeeds
+from gprbot.messages import (
+    FusionSnapshot,
+    ImuSample,
+    Pose,
+    RawRgbdFrame,
+    RgbdFrame,
+    SurveyEvent,
+    Trace,
+    VoMeasurement,
+    WheelEncoders,
+    WheelSpeeds,
+)
 from gprbot.outputs.run_dir import write_survey_outputs
-from gprbot.runlog import RunLogWriter, SurveyEvent, make_run_header
+from gprbot.runlog import RunLogWriter, make_run_header
 from gprbot.runlog_reader import RunLogReader
 from gprbot.survey import LineWindow, assemble_bscan, line_windows, split_by_line
 
@@ -73,8 +82,8 @@ def load_run(run_dir: Path, cfg: Config | None = None) -> RecordedRun:
             poses.append(message)
         elif isinstance(message, SurveyEvent):
             events.append(message)
-        elif isinstance(message, ImuSample | WheelSpeeds | VoMeasurement | encoders.WheelEncoders
-                        | RgbdFrame | realsense.RawRgbdFrame):
+        elif isinstance(message, ImuSample | WheelSpeeds | VoMeasurement | WheelEncoders
+                        | RgbdFrame | RawRgbdFrame):
             sensors.append(message)
     source = "recorded"
     if not poses and snapshot is not None:
@@ -111,7 +120,7 @@ def continue_filter(snapshot: FusionSnapshot, messages: Iterable[Any], cfg: Conf
     for message in queued:
         poses.extend(fuser.push(message))
     for message in messages:
-        if isinstance(message, encoders.WheelEncoders):
+        if isinstance(message, WheelEncoders):
             poses.extend(fuser.push(message.wheel_speeds()))
         elif isinstance(message, ImuSample | VoMeasurement):
             poses.extend(fuser.push(message))
@@ -126,9 +135,9 @@ def fuse_poses(messages: Iterable[Any], cfg: Config) -> list[Pose]:
     odometry = None
     poses: list[Pose] = []
     for message in items:
-        if isinstance(message, encoders.WheelEncoders):
+        if isinstance(message, WheelEncoders):
             message = message.wheel_speeds()
-        if isinstance(message, realsense.RawRgbdFrame):
+        if isinstance(message, RawRgbdFrame):
             depth = message.depth.astype(np.float32) * np.float32(message.depth_scale)
             message = RgbdFrame(message.t, message.color, depth, message.fx, message.fy, message.cx, message.cy)
         if isinstance(message, RgbdFrame):

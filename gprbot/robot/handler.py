@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gprbot.errors import DriverError, GprbotError
-from gprbot.fusion.frames import VoHealth
 from gprbot.fusion.fuser import FusionStats
+from gprbot.messages import VoHealth, expected_rates
 from gprbot.shell.commands import ErrorCode, Jog, Reset, Status, Stop, SurveyControl, SurveyStart
 from gprbot.shell.handler import RobotCommand, SessionInfo
 from gprbot.shell.protocol import Reply
@@ -143,15 +143,14 @@ class RobotHandler:
             for task in rt.supervisor.health():
                 lines.append(f"task {task.name} {task.state} restarts {task.restarts}"
                              + (f" last_error {task.last_error}" if task.last_error else ""))
-        for driver in (rt.motors, rt.gpr):
-            if driver is not None:
-                h = driver.health()
-                lines.append(f"driver {h.name} {'connected' if h.connected else 'DISCONNECTED'} rate_hz "
-                             f"{h.rate_hz:.1f} drops {h.drops} errors {h.errors}")
-        if rt.realsense is not None:
-            for name, h in rt.realsense.health().items():
-                lines.append(f"driver realsense.{name} {'connected' if h.connected else 'DISCONNECTED'} rate_hz "
-                             f"{h.rate_hz:.1f} drops {h.drops} errors {h.errors}")
+        expected = expected_rates(rt.cfg)
+        healths = [d.health() for d in (rt.motors, rt.gpr) if d is not None]
+        healths += list(rt.realsense.health().values()) if rt.realsense is not None else []
+        for h in healths:
+            slow = h.slow_against(expected.get(h.name))
+            lines.append(f"driver {h.name} {'connected' if h.connected else 'DISCONNECTED'} rate_hz "
+                         f"{h.rate_hz:.1f} drops {h.drops} errors {h.errors}"
+                         + (f" SLOW expected_hz {expected[h.name]:.1f}" if slow else ""))
         lines.append(vo_status_line(rt.vo.health(), rt.fusion.fuser.stats))
         if rt.worker is not None:
             w = rt.worker.health()

@@ -23,9 +23,9 @@ from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.realsense.driver import RealsenseDriver
 from gprbot.errors import ConfigError, DriverError
-from gprbot.fusion.frames import CameraMount, VoMeasurement
+from gprbot.geometry import CameraMount
 from gprbot.infer.worker import InferenceWorker
-from gprbot.messages import ImuSample, WheelSpeeds
+from gprbot.messages import ImuSample, VoMeasurement, WheelSpeeds
 from gprbot.motion.heading import HeadingHoldDrive, HeadingHoldGains
 from gprbot.motion.jog import JogController
 from gprbot.robot.fusion_state import FusionState

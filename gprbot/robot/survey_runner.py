@@ -27,7 +27,7 @@ from gprbot.gpr.bscan import BScan
 from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
 from gprbot.infer.worker import InferenceWorker
 from gprbot.infer.worker_process import LineJobResult
-from gprbot.messages import Trace
+from gprbot.messages import SurveyEvent, Trace
 from gprbot.motion.planner import Segment, SurveyPlan, plan_survey
 from gprbot.outputs.report_html import write_report_safely
 from gprbot.outputs.run_dir import write_survey_outputs
@@ -35,7 +35,7 @@ from gprbot.retention import prune_runs
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
 from gprbot.robot.tracking import tracking_velocity
-from gprbot.runlog import SurveyEvent, make_run_header
+from gprbot.runlog import make_run_header
 from gprbot.survey import assemble_bscan
 
 log = logging.getLogger(__name__)

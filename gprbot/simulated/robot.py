@@ -31,7 +31,7 @@ from gprbot.config import Config
 from gprbot.drivers.gpr.emulator import GprSdkEmulator
 from gprbot.drivers.motors.emulator import RoboClawEmulator
 from gprbot.drivers.realsense.emulator import D435iEmulator
-from gprbot.fusion.frames import CameraMount
+from gprbot.geometry import CameraMount
 from gprbot.messages import ImuSample
 from gprbot.motion.kinematics import KiwiKinematics, integrate_body_twist
 from gprbot.sim.camera import CameraModel, FloorCamera

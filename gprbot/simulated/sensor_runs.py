@@ -14,11 +14,10 @@ import numpy as np
 
 from gprbot.config import FusionConfig, MotorsConfig
 from gprbot.fusion.baselines import imu_dead_reckoning, vo_only, wheel_only
-from gprbot.fusion.frames import VoMeasurement
 from gprbot.fusion.fuser import FusionStats, PoseFuser
 from gprbot.fusion.so3 import yaw_of
 from gprbot.fusion.vo import RgbdOdometry
-from gprbot.messages import ImuSample, Pose, WheelSpeeds
+from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
 from gprbot.sim.camera import CameraModel, FloorCamera
 from gprbot.sim.encoders import EncoderRecording, simulate_encoders
 from gprbot.sim.floor_texture import FloorSpec

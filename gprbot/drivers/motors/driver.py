@@ -24,10 +24,10 @@ from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.drivers.motors import protocol as rc
 from gprbot.drivers.motors import replies
 from gprbot.drivers.motors.bus import LinkError, PacketBus, SupersededError
-from gprbot.drivers.motors.encoders import CountUnwrapper, WheelEncoders
+from gprbot.drivers.motors.encoders import CountUnwrapper
 from gprbot.drivers.motors.safety import check_motors_config
 from gprbot.errors import DriverError
-from gprbot.messages import WheelSpeeds
+from gprbot.messages import WheelEncoders, WheelSpeeds
 
 RECONNECT_BACKOFF_S = (0.1, 2.0)  # first and longest wait between reconnection attempts
 R = TypeVar("R")

@@ -15,7 +15,6 @@ import asyncio
 import contextlib
 import time
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -28,33 +27,15 @@ from gprbot.drivers.realsense.handoff import Handoff
 from gprbot.drivers.realsense.readings import MotionReading, Reading, RgbdReading, Sink, SourceEvent
 from gprbot.drivers.realsense.source import RealsenseSource
 from gprbot.errors import DriverError
-from gprbot.messages import ImuSample, register_message
+from gprbot.messages import ImuSample, RawRgbdFrame
 
 __all__ = [
-    "STREAMS", "FrameSource", "Handoff", "Message", "RawRgbdFrame", "RealsenseDriver", "SourceFactory",
+    "STREAMS", "FrameSource", "Handoff", "Message", "RealsenseDriver", "SourceFactory",
 ]
 
 STREAMS = ("gyro", "accel", "depth", "color")
 
 
-@dataclass(frozen=True)
-class RawRgbdFrame:
-    """One RGB-D frame as the camera gives it: colour BGR uint8 (h, w, 3), depth uint16 (h, w) registered
-    to the colour image (metres = depth * depth_scale, 0 = no depth), the colour camera's pinhole
-    intrinsics (pixels). `fusion.frames.RgbdFrame` is its metric form (depth float32 m)."""
-
-    t: float
-    number: int
-    color: NDArray[np.uint8]
-    depth: NDArray[np.uint16]
-    depth_scale: float
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-
-register_message(RawRgbdFrame)
 Message = ImuSample | RawRgbdFrame
 
 

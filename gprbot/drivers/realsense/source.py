@@ -213,7 +213,7 @@ class RealsenseSource:
         registered = self._register(depth_frame, color_frame) if self._register else depth_frame
         color = np.asanyarray(color_frame.get_data())
         if color_frame.get_profile().format().name == "rgb8":
-            color = color[..., ::-1]  # published BGR, as OpenCV and fusion.frames.RgbdFrame have it
+            color = color[..., ::-1]  # published BGR, as OpenCV and messages.RgbdFrame have it
         return RgbdReading(
             depth_number=depth_frame.get_frame_number(),
             color_number=color_frame.get_frame_number(),
