@@ -216,7 +216,7 @@ def _cmd_config_check(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(to_dict(cfg), indent=2))
         return 0
-    devices = "simulated robot" if cfg.motors.port == "sim" else f"motors on {cfg.motors.port}"
+    devices = "simulated robot" if cfg.simulated else f"motors on {cfg.motors.port}"
     print(f"{args.file}: ok ({devices}; shell {cfg.shell.host}:{cfg.shell.port}; runs in {cfg.runs_dir}; "
           f"interpretation {cfg.interpretation.method}, completion {cfg.reconstruction.completion})")
     return 0

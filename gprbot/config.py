@@ -302,6 +302,9 @@ class RetentionConfig:
             raise ConfigError(f"retention.max_total_gb: expected > 0 (or null), got {self.max_total_gb}")
 
 
+SIMULATED = "sim"  # the address (motors.port, gpr_device.host, realsense.source) of a device the simulator emulates
+
+
 @dataclass(frozen=True)
 class Config:
     """The whole gprbot configuration."""
@@ -324,6 +327,16 @@ class Config:
     retention: RetentionConfig = field(default_factory=RetentionConfig)
     georeference: GeoreferenceConfig | None = None
     models_dir: str | None = None  # where model files are looked up by name (default: checkout or package)
+
+    @property
+    def simulated(self) -> bool:
+        """Whether the config selects the simulated robot (any device addressed as SIMULATED)."""
+        return SIMULATED in (self.motors.port, self.gpr_device.host, self.realsense.source)
+
+    @property
+    def all_simulated(self) -> bool:
+        """Whether every device is the simulated robot's (mixing simulated and real ones is refused)."""
+        return self.motors.port == self.gpr_device.host == self.realsense.source == SIMULATED
 
 
 CHECKOUT_ROOT = Path(__file__).resolve().parents[1]

@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
-from gprbot.errors import ConfigError
-from gprbot.messages import CameraIntrinsics
+from gprbot.errors import ConfigError, InterpretationError
+from gprbot.messages import CameraIntrinsics, Pose
 
 _EPS = 1e-12
 
@@ -166,3 +168,41 @@ class CameraMount:
         T[:3, :3] = self.rotation()
         T[:3, 3] = self.position_m
         return T
+
+
+# ----- the antenna's lever arm ----------------------------------------------------------------------
+# Two forms on purpose: the base's control and the live map use the heading alone (a kiwi base drives in
+# the plane; a filter's small roll/pitch must not steer it), registration applies the full rotation.
+def yaw_of(pose: Pose) -> float:
+    """The heading (rad) of a pose's quaternion (x, y, z, w)."""
+    qx, qy, qz, qw = (float(v) for v in pose.orientation)
+    return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+
+
+def planar_antenna_xy(x: float, y: float, yaw: float, lever_arm: tuple[float, float, float]) -> NDArray[np.float64]:
+    """The antenna midpoint (x, y) in the site frame for a base at (x, y) heading `yaw`."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([x + c * lever_arm[0] - s * lever_arm[1], y + s * lever_arm[0] + c * lever_arm[1]])
+
+
+def antenna_xy(pose: Pose, lever_arm: tuple[float, float, float]) -> NDArray[np.float64]:
+    """The antenna midpoint (x, y) in the site frame for a base pose (its heading only)."""
+    return planar_antenna_xy(float(pose.position[0]), float(pose.position[1]), yaw_of(pose), lever_arm)
+
+
+def antenna_positions(poses: Sequence[Pose], lever_arm: tuple[float, float, float]) -> NDArray[np.float64]:
+    """Site-frame antenna midpoints (n, 3): each base pose applied to the base-frame lever arm."""
+    if len(poses) == 0:
+        return np.zeros((0, 3))
+    positions = np.array([np.asarray(p.position, dtype=np.float64) for p in poses])
+    quats = np.array([np.asarray(p.orientation, dtype=np.float64) for p in poses])
+    if positions.shape[1:] != (3,) or quats.shape[1:] != (4,):
+        raise InterpretationError("poses need a 3-vector position and an (x, y, z, w) quaternion each")
+    try:
+        rotations = Rotation.from_quat(quats)  # scipy's order is scalar-last (x, y, z, w), as Pose
+    except ValueError as exc:
+        raise InterpretationError(
+            f"a pose has an invalid orientation quaternion ({exc}); check the pose source (fusion/EKF)"
+        ) from exc
+    arm = np.asarray(lever_arm, dtype=np.float64)
+    return np.asarray(positions + rotations.apply(np.tile(arm, (len(positions), 1))), dtype=np.float64)

@@ -17,12 +17,13 @@ from gprbot.motion.kinematics import KiwiKinematics, planar_pose_message
 from gprbot.motion.planner import Segment
 from gprbot.robot.tracking import tracking_velocity
 from gprbot.sim.forward import simulate_bscan
-from gprbot.simulated.robot import GRAVITY_M_S2, SimRobot, is_simulated, start_pose
+from gprbot.simulated.robot import GRAVITY_M_S2, SimRobot
+from gprbot.survey import start_pose
 
 
 def test_the_default_config_is_the_simulated_robot_starting_with_the_antenna_on_the_start_point() -> None:
     cfg = load_config()
-    assert is_simulated(cfg)
+    assert cfg.simulated
     x, y, yaw = start_pose(cfg)
     lever = cfg.mount.antenna_lever_arm_m
     assert (x + lever[0], y + lever[1], yaw) == (*cfg.survey.start_xy_m, 0.0)

@@ -16,8 +16,9 @@ from gprbot.config import Config, load_config, to_dict
 from gprbot.errors import GprbotError
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.preprocess import preprocess
-from gprbot.infer.pipeline import SurveyResult, interpret_line, reconstruct_survey
+from gprbot.infer.pipeline import interpret_line, reconstruct_survey
 from gprbot.infer.worker import InferenceWorker
+from gprbot.reconstruct.survey_result import SurveyResult
 from gprbot.sim.scene import load_scene
 from gprbot.simulated.survey import simulate_survey
 from gprbot.survey import assemble_bscan, line_windows, split_by_line

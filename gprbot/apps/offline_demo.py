@@ -11,9 +11,10 @@ import numpy as np
 
 from gprbot import __version__, progress
 from gprbot.config import Config, to_dict
-from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
+from gprbot.infer.pipeline import reconstruct_survey, survey_steps
 from gprbot.outputs.report_html import write_report_safely
 from gprbot.outputs.run_dir import write_survey_outputs
+from gprbot.reconstruct.survey_result import SurveyResult
 from gprbot.sim.scene import Scene
 from gprbot.sim.truth import cross_section_mask
 from gprbot.simulated.evaluation import PipeMatch, compare_to_truth, format_truth_table, within_bounds

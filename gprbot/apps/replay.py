@@ -22,7 +22,7 @@ from gprbot.fusion.fuser import PoseFuser
 from gprbot.fusion.snapshot import restore
 from gprbot.geometry import CameraMount
 from gprbot.gpr.bscan import BScan
-from gprbot.infer.pipeline import SurveyResult, reconstruct_survey, survey_steps
+from gprbot.infer.pipeline import reconstruct_survey, survey_steps
 from gprbot.messages import (
     FusionSnapshot,
     ImuSample,
@@ -36,6 +36,7 @@ from gprbot.messages import (
     WheelSpeeds,
 )
 from gprbot.outputs.run_dir import write_survey_outputs
+from gprbot.reconstruct.survey_result import SurveyResult
 from gprbot.runlog import RunLogWriter, make_run_header
 from gprbot.runlog_reader import RunLogReader
 from gprbot.survey import LineWindow, assemble_bscan, line_windows, split_by_line

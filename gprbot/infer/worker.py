@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from multiprocessing.process import BaseProcess
 
     from gprbot.gpr.bscan import BScan
-    from gprbot.infer.pipeline import SurveyResult
+    from gprbot.reconstruct.survey_result import SurveyResult
 
 _POLL_S = 0.05
 

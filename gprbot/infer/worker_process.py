@@ -21,8 +21,8 @@ if TYPE_CHECKING:
 
     from gprbot.gpr.bscan import BScan
     from gprbot.gpr.interpret import CrossSection
-    from gprbot.infer.pipeline import SurveyResult
     from gprbot.reconstruct.register import SliceCloud
+    from gprbot.reconstruct.survey_result import SurveyResult
 
 _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 

@@ -19,9 +19,9 @@ from scipy.interpolate import LinearNDInterpolator, griddata
 from scipy.spatial import Delaunay, QhullError
 
 from gprbot.gpr.migration import envelope
-from gprbot.infer.pipeline import SurveyResult
 from gprbot.plotting import new_figure, save_png
 from gprbot.reconstruct.completion import pipe_colors
+from gprbot.reconstruct.survey_result import SurveyResult
 
 GRID_STEP_M = 0.02
 

@@ -12,7 +12,6 @@ from gprbot.config import GeoreferenceConfig, build_dataclass
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.formats.export import export_survey_lines
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
-from gprbot.infer.pipeline import SurveyResult
 from gprbot.outputs.depth_slices import depth_bands, depth_slices, render_depth_slices
 from gprbot.outputs.dxf import write_dxf
 from gprbot.outputs.geojson import write_geojson
@@ -30,6 +29,7 @@ from gprbot.outputs.tables import (
 )
 from gprbot.outputs.topdown import render_topdown
 from gprbot.reconstruct.completion import pipe_colors
+from gprbot.reconstruct.survey_result import SurveyResult
 
 SPARSE_PLY = "sparse.ply"
 DENSE_PLY = "dense.ply"

@@ -6,19 +6,25 @@ clouds, the PNGs), so a run pulled to a laptop gives the same page as the robot 
 
 from __future__ import annotations
 
+import base64
 import json
 import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gprbot.errors import DataFormatError
 from gprbot.outputs.ply import read_ply
 from gprbot.shell import runfiles
-from gprbot.web.live import b64
 
 _LINE_PICTURE = re.compile(r"(bscan|section)_line(\d+)\.png")
+
+
+def b64(array: NDArray[Any]) -> str:
+    """Little-endian bytes of an array, base64 (what the page turns back into a typed array)."""
+    return base64.b64encode(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<")).tobytes()).decode()
 
 
 def _json_file(path: Path) -> Any:

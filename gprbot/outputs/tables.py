@@ -17,9 +17,9 @@ import numpy as np
 
 from gprbot.atomic_files import write_bytes_atomic
 from gprbot.geometry import polyline_length
-from gprbot.infer.pipeline import SurveyResult
 from gprbot.outputs.georef import Georeference
 from gprbot.reconstruct.completion import PipeModel
+from gprbot.reconstruct.survey_result import SurveyResult
 
 
 def _earth_columns(georef: Georeference | None, prefix: str, point: np.ndarray) -> dict[str, float]:

@@ -7,16 +7,13 @@ site-frame point: the column's horizontal position and the pixel's depth below t
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from gprbot.errors import InterpretationError
-from gprbot.messages import Pose
 
 # Duplicated points (when a cloud has fewer points than asked for) are moved by this much so that no two
 # points coincide; far below any mask pixel (≥ 2 mm), so it adds no visible noise.
@@ -35,24 +32,6 @@ class SliceCloud:
     direction: NDArray[np.float64]
     pixel_pitch_m: tuple[float, float] | None = None
     pose_std_m: float = 0.0  # RMS 1σ of the line's antenna positions (from the pose filter); 0: unknown
-
-
-def antenna_positions(poses: Sequence[Pose], lever_arm: tuple[float, float, float]) -> NDArray[np.float64]:
-    """Site-frame antenna midpoints (n, 3): each base pose applied to the base-frame lever arm."""
-    if len(poses) == 0:
-        return np.zeros((0, 3))
-    positions = np.array([np.asarray(p.position, dtype=np.float64) for p in poses])
-    quats = np.array([np.asarray(p.orientation, dtype=np.float64) for p in poses])
-    if positions.shape[1:] != (3,) or quats.shape[1:] != (4,):
-        raise InterpretationError("poses need a 3-vector position and an (x, y, z, w) quaternion each")
-    try:
-        rotations = Rotation.from_quat(quats)  # scipy's order is scalar-last (x, y, z, w), as Pose
-    except ValueError as exc:
-        raise InterpretationError(
-            f"a pose has an invalid orientation quaternion ({exc}); check the pose source (fusion/EKF)"
-        ) from exc
-    arm = np.asarray(lever_arm, dtype=np.float64)
-    return np.asarray(positions + rotations.apply(np.tile(arm, (len(positions), 1))), dtype=np.float64)
 
 
 def line_direction(column_positions: NDArray[np.float64]) -> NDArray[np.float64]:

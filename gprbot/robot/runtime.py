@@ -14,11 +14,11 @@ import math
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from gprbot.config import Config
+from gprbot.config import SIMULATED, Config
 from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.realsense.driver import RealsenseDriver
@@ -34,8 +34,11 @@ from gprbot.robot.survey_runner import SurveyRunner
 from gprbot.robot.vo_task import VoTask
 from gprbot.shell.handler import EventBus
 from gprbot.shell.server import SerialShell, ShellServer
-from gprbot.simulated.robot import SimRobot, is_simulated, start_pose
 from gprbot.supervisor import Supervisor, TaskSpec
+from gprbot.survey import start_pose
+
+if TYPE_CHECKING:
+    from gprbot.simulated.robot import SimRobot
 
 log = logging.getLogger(__name__)
 CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
@@ -63,10 +66,13 @@ class RobotRuntime:
         self.cfg = cfg
         self.clock = clock
         self.sim: SimRobot | None = None
-        if is_simulated(cfg):
-            if not (cfg.motors.port == "sim" and cfg.gpr_device.host == "sim" and cfg.realsense.source == "sim"):
-                raise ConfigError("mixing simulated and real devices is not supported: set motors.port, "
-                                  "gpr_device.host and realsense.source all to 'sim', or none of them")
+        if cfg.simulated:
+            if not cfg.all_simulated:
+                raise ConfigError(f"mixing simulated and real devices is not supported: set motors.port, "
+                                  f"gpr_device.host and realsense.source all to '{SIMULATED}', or none of them")
+            # Imported only here: on the robot the runtime never loads the simulated world.
+            from gprbot.simulated.robot import SimRobot
+
             self.sim = SimRobot(cfg, clock=clock)
         self.fusion = FusionState(cfg, start_pose(cfg))
         gains = HeadingHoldGains(cfg.motion.heading_kp_per_s, cfg.motion.heading_ki_per_s2,

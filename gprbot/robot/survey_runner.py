@@ -24,13 +24,14 @@ from numpy.typing import NDArray
 from gprbot.config import Config, SurveyConfig, to_dict
 from gprbot.errors import GprbotError
 from gprbot.gpr.bscan import BScan
-from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
+from gprbot.infer.pipeline import reconstruct_survey
 from gprbot.infer.worker import InferenceWorker
 from gprbot.infer.worker_process import LineJobResult
 from gprbot.messages import SurveyEvent, Trace
 from gprbot.motion.planner import Segment, SurveyPlan, plan_survey
 from gprbot.outputs.report_html import write_report_safely
 from gprbot.outputs.run_dir import write_survey_outputs
+from gprbot.reconstruct.survey_result import SurveyResult
 from gprbot.retention import prune_runs
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder

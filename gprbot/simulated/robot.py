@@ -31,7 +31,7 @@ from gprbot.config import Config
 from gprbot.drivers.gpr.emulator import GprSdkEmulator
 from gprbot.drivers.motors.emulator import RoboClawEmulator
 from gprbot.drivers.realsense.emulator import D435iEmulator
-from gprbot.geometry import CameraMount
+from gprbot.geometry import CameraMount, planar_antenna_xy
 from gprbot.messages import ImuSample
 from gprbot.motion.kinematics import KiwiKinematics, integrate_body_twist
 from gprbot.sim.camera import CameraModel, FloorCamera
@@ -39,21 +39,10 @@ from gprbot.sim.encoders import EncoderModel
 from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.imu import ImuModel
 from gprbot.sim.scene import Scene, load_scene
+from gprbot.survey import start_pose
 
 GRAVITY_M_S2 = 9.80665
 WHEEL_RADIUS_ERROR = (0.012, -0.009, 0.004)  # true radius / nominal - 1 for wheels 0, 1, 2
-
-
-def is_simulated(cfg: Config) -> bool:
-    """Whether the config asks for the simulated robot (any device set to "sim")."""
-    return cfg.motors.port == "sim" or cfg.gpr_device.host == "sim" or cfg.realsense.source == "sim"
-
-
-def start_pose(cfg: Config) -> tuple[float, float, float]:
-    """Where the base starts (x, y, yaw): the antenna midpoint over the survey's start point, heading +x."""
-    lever = cfg.mount.antenna_lever_arm_m
-    x0, y0 = cfg.survey.start_xy_m
-    return (x0 - lever[0], y0 - lever[1], 0.0)
 
 
 class SimRobot:
@@ -193,9 +182,8 @@ class SimRobot:
     def antenna_xy(self) -> NDArray[np.float64]:
         """The true antenna midpoint (x, y) in the site frame now."""
         self.advance()
-        lever = self.cfg.mount.antenna_lever_arm_m
-        c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
-        return np.array([self.pose[0] + c * lever[0] - s * lever[1], self.pose[1] + s * lever[0] + c * lever[1]])
+        return planar_antenna_xy(float(self.pose[0]), float(self.pose[1]), float(self.pose[2]),
+                                 self.cfg.mount.antenna_lever_arm_m)
 
     def _trace(self, number: int) -> NDArray[np.float32]:
         """Trace `number` as the antenna records it at its true position now (the emulator's source)."""

@@ -1,4 +1,4 @@
-"""Simulated runs for the evaluation: sensor streams from a ground truth, every estimator run on them.
+"""Simulated runs: sensor streams from a ground truth, through the robot's pose filter and the baselines.
 
 Messages reach the filter in the order they would on the robot — by arrival time, not sensor time:
 IMU 2 ms after sampling, wheel speeds 5 ms, VO 40 ms after its frame (a VO result stamped with an
@@ -18,11 +18,13 @@ from gprbot.fusion.fuser import FusionStats, PoseFuser
 from gprbot.fusion.so3 import yaw_of
 from gprbot.fusion.vo import RgbdOdometry
 from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
+from gprbot.motion.planner import SurveyPlan
 from gprbot.sim.camera import CameraModel, FloorCamera
 from gprbot.sim.encoders import EncoderRecording, simulate_encoders
 from gprbot.sim.floor_texture import FloorSpec
 from gprbot.sim.imu import ImuRecording, simulate_imu
-from gprbot.sim.motion_truth import GroundTruth
+from gprbot.sim.motion_truth import GroundTruth, survey_ground_truth
+from gprbot.sim.trajectory import SimulatedTrajectory
 
 IMU_LATENCY_S, WHEEL_LATENCY_S, VO_LATENCY_S = 0.002, 0.005, 0.040
 
@@ -114,3 +116,26 @@ def run_estimators(
         stats=fuser.stats,
         filter_s=filter_s,
     )
+
+
+def fused_trajectory(
+    plan: SurveyPlan, lever_arm: tuple[float, float, float], motors: MotorsConfig, fusion: FusionConfig, seed: int
+) -> SimulatedTrajectory:
+    """The base driving `plan` with real dynamics, and the pose filter's estimate from simulated sensors.
+
+    The estimate comes from the same code the robot runs: simulated BMI055 IMU, slipping wheel encoders
+    and a rendered floor seen by the D435i, through visual odometry and the loosely coupled filter.
+    """
+    truth = survey_ground_truth(plan, (lever_arm[0], lever_arm[1]), seed=seed)
+    run = simulate_run("survey", truth, seed=seed, motors=motors)
+    t0 = np.array([truth.t_start])
+    start = truth.position(t0)[0]
+    start_xyz = (float(start[0]), float(start[1]), float(start[2]))
+    fuser = PoseFuser(fusion, motors, start_xyz, yaw_of(truth.rotation(t0)[0]))
+    estimated: list[Pose] = []
+    for message in arrival_order(run):
+        estimated.extend(fuser.push(message))
+    estimated.extend(fuser.flush())
+    times = np.array([p.t for p in estimated])
+    arm = np.asarray(lever_arm, dtype=np.float64)
+    return SimulatedTrajectory(times, tuple(truth.poses(times)), tuple(estimated), arm)

@@ -12,7 +12,8 @@ from gprbot.messages import Trace
 from gprbot.motion.planner import SurveyPlan, plan_survey
 from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.scene import Scene
-from gprbot.sim.trajectory import SimulatedTrajectory, fused_trajectory, simulate_trajectory
+from gprbot.sim.trajectory import SimulatedTrajectory, simulate_trajectory
+from gprbot.simulated.sensor_runs import fused_trajectory
 
 
 @dataclass(frozen=True)

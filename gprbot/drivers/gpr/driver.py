@@ -17,7 +17,7 @@ from collections.abc import AsyncGenerator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
-from gprbot.config import GprDeviceConfig
+from gprbot.config import SIMULATED, GprDeviceConfig
 from gprbot.drivers.gpr import sdk_api as api
 from gprbot.drivers.gpr.sdk_client import READ_CHUNK, DeviceClock, SdkHttpClient
 from gprbot.drivers.gpr.trace_stream import (
@@ -105,7 +105,7 @@ class GprDriver:
 
     async def start(self) -> None:
         """Check the device, power it, set it up, start acquiring and open the data socket."""
-        if self.cfg.host == "sim":
+        if self.cfg.host == SIMULATED:
             raise DriverError("gpr_device.host is 'sim': start GprSdkEmulator and use emulator.driver_config(cfg)")
         if self._task is not None:
             raise DriverError("the GPR driver is already started")

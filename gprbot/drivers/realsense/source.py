@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from gprbot.config import RealsenseConfig
+from gprbot.config import SIMULATED, RealsenseConfig
 from gprbot.drivers.realsense.clock import FramePairer
 from gprbot.drivers.realsense.readings import Intrinsics, MotionReading, Reading, RgbdReading, Sink, SourceEvent
 from gprbot.drivers.realsense.registration import DepthToColor, same_geometry
@@ -137,7 +137,7 @@ class RealsenseSource:
 
     def _open_device(self, sdk: Any, ctx: Any) -> list[tuple[Any, list[Any]]]:
         cfg = self.cfg
-        if cfg.source == "sim" and self._given_device is None:
+        if cfg.source == SIMULATED and self._given_device is None:
             raise DriverError(
                 'realsense.source is "sim": the simulator provides the camera; set realsense.source to '
                 '"device" (or a serial number) or realsense.playback to a recording'
