@@ -35,13 +35,17 @@ def leg_time(height: float, horiz: FloatArray, depth: FloatArray, v: FloatArray 
 def _bend_point(h: float, D: FloatArray, d: FloatArray, v: FloatArray | float) -> FloatArray:
     """Horizontal distance from the antenna to where the ray enters the ground (Fermat, Newton's method)."""
     c = C_M_PER_NS
-    a = D * h * c / (v * d + h * c)  # paraxial Snell: a / (h c) = (D - a) / (d v)
+    hc, h2, d2 = h * c, h * h, d * d
+    a = D * hc / (v * d + hc)  # paraxial Snell: a / (h c) = (D - a) / (d v)
+    # Written for small arrays (the fits call this ~10⁵ times a line): no np.clip, no powers.
     for _ in range(_NEWTON_STEPS):
-        ra = np.sqrt(h * h + a * a)
-        rb = np.sqrt(d * d + (D - a) ** 2)
-        g = a / (c * ra) - (D - a) / (v * rb)
-        gp = h * h / (c * ra**3) + d * d / (v * rb**3)
-        a = np.clip(a - g / gp, 0.0, D)
+        ra2 = h2 + a * a
+        rest = D - a
+        rb2 = d2 + rest * rest
+        ra, rb = np.sqrt(ra2), np.sqrt(rb2)
+        g = a / (c * ra) - rest / (v * rb)
+        gp = h2 / (c * ra * ra2) + d2 / (v * rb * rb2)
+        a = np.minimum(np.maximum(a - g / gp, 0.0), D)
     return np.asarray(a)
 
 

@@ -25,6 +25,7 @@ from gprbot.gpr.chain.candidates import ApexCandidate
 from gprbot.gpr.chain.classify import MIN_FLANK_PICKS, RADIUS_SUPPORT, ClassifiedDetection
 from gprbot.gpr.chain.fit import R_MAX_M, CylinderFit
 from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
 
@@ -54,15 +55,6 @@ class Spot:
     column: int  # of the prepared grid
 
 
-def _refined(values: FloatArray, i: int) -> float:
-    """Sub-cell offset of a maximum at index i (three-point parabola), in cells."""
-    if i <= 0 or i >= len(values) - 1:
-        return 0.0
-    a, b, c = values[i - 1], values[i], values[i + 1]
-    denom = a - 2.0 * b + c
-    return 0.0 if denom == 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
-
-
 def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v: float) -> tuple[Spot, ...]:
     """Compact spots of the migrated envelope (nz, nx) below the direct wave, strongest first."""
     if len(z_m) < 3 or env.shape[1] < 3:
@@ -84,8 +76,8 @@ def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v
         left, right = e[i, max(0, j - side)], e[i, min(e.shape[1] - 1, j + side)]
         if min(left, right) >= COMPACT_RATIO * e[i, j]:
             continue  # flat to both sides: a layer or the slab's bottom, not a diffraction's focus
-        x = float(prep.x_m[j] + _refined(e[i, :], j) * prep.dx_m)
-        top = float(z_m[i] + _refined(e[:, j], i) * dz)
+        x = float(prep.x_m[j] + peak_offset(e[i, :], j) * prep.dx_m)
+        top = float(z_m[i] + peak_offset(e[:, j], i) * dz)
         out.append(Spot(x, top, float(e[i, j]), float(e[i, j] / band_level[i]), int(j)))
     out.sort(key=lambda s: -s.brightness)
     return tuple(out[: max(4, round(MAX_SPOTS_PER_M * float(np.ptp(prep.x_m))))])

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.reflectors import Reflector
 
@@ -94,9 +95,7 @@ def _peak(curve: FloatArray, velocities: FloatArray) -> float | None:
     i = int(np.argmax(curve))
     if i in (0, len(curve) - 1):
         return None
-    a, b, c = curve[i - 1], curve[i], curve[i + 1]
-    denom = a - 2.0 * b + c
-    frac = 0.0 if denom >= 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
+    frac = peak_offset(curve, i)
     lv = np.log(velocities)
     return float(np.exp(lv[i] + frac * (lv[1] - lv[0])))
 
