@@ -87,6 +87,32 @@ def _pick_all(
     return out
 
 
+def _two_rounds(
+    prep: PreparedBScan, cands: Sequence[ApexCandidate], starts: Sequence[tuple[float, float, float, float]], *,
+    merge: bool,
+) -> dict[int, Reflector]:
+    """Picks along the first curves, free-velocity fits, merging (if asked), picks along the fits, refits."""
+    curves = [(v, r, zc, float(prep.x_m[c.column])) for c, (v, r, zc, _) in zip(cands, starts, strict=True)]
+    picks = _pick_all(prep, cands, curves, 0.5)
+    fits = fit_cylinders(prep, picks, [s[0] for s in starts], free_velocity=True)
+    # One reflector per target: the strongest candidate's fit stands for the others on the same hyperbola.
+    kept: list[tuple[int, CylinderFit]] = []
+    for i, f in enumerate(fits):
+        if f is not None and not (merge and any(_same_target(f, g) for _, g in kept)):
+            kept.append((i, f))
+    curves = [(f.v, f.radius_m, f.depth_m, f.x0_m) for _, f in kept]
+    again = _pick_all(prep, [cands[i] for i, _ in kept], curves, 0.3)
+    refits = fit_cylinders(prep, again, [c[0] for c in curves], free_velocity=True)
+    out = {}
+    for k, (i, first_fit) in enumerate(kept):
+        refit = refits[k]
+        if refit is not None and len(again[k].x_m) >= 0.8 * len(picks[i].x_m):
+            out[i] = Reflector(cands[i], again[k], refit, starts[i][3])
+        else:
+            out[i] = Reflector(cands[i], picks[i], first_fit, starts[i][3])
+    return out
+
+
 def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> tuple[Reflector, ...]:
     """One free-velocity cylinder fit per distinct hyperbola among the candidates (two rounds of picks)."""
     table = line_table(prep, candidates)
@@ -97,45 +123,48 @@ def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> 
     starts = [f for _, f in firsts if f is not None]
     if not cands:
         return ()
-    curves = [(v, r, zc, float(prep.x_m[c.column])) for c, (v, r, zc, _) in zip(cands, starts, strict=True)]
-    picks = _pick_all(prep, cands, curves, 0.5)
-    fits = fit_cylinders(prep, picks, [s[0] for s in starts], free_velocity=True)
-    # One reflector per target: the strongest candidate's fit stands for the others on the same hyperbola.
-    kept: list[tuple[int, CylinderFit]] = []
-    for i, f in enumerate(fits):
-        if f is not None and not any(_same_target(f, g) for _, g in kept):
-            kept.append((i, f))
-    curves = [(f.v, f.radius_m, f.depth_m, f.x0_m) for _, f in kept]
-    again = _pick_all(prep, [cands[i] for i, _ in kept], curves, 0.3)
-    refits = fit_cylinders(prep, again, [c[0] for c in curves], free_velocity=True)
-    out = []
-    for k, (i, first_fit) in enumerate(kept):
-        refit = refits[k]
-        if refit is not None and len(again[k].x_m) >= 0.8 * len(picks[i].x_m):
-            out.append(Reflector(cands[i], again[k], refit, starts[i][3]))
+    return tuple(_two_rounds(prep, cands, starts, merge=True).values())
+
+
+def fit_each(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> list[Reflector | None]:
+    """Every candidate fitted as if it were the only one (its own table, no merging), in one batch."""
+    firsts: list[tuple[float, float, float, float] | None] = []
+    for c in candidates:
+        table = line_table(prep, [c])
+        firsts.append(None if table is None else _first_curve(prep, table, c))
+    index = [k for k, f in enumerate(firsts) if f is not None]
+    out: list[Reflector | None] = [None] * len(candidates)
+    if index:
+        starts = [f for f in firsts if f is not None]
+        for j, r in _two_rounds(prep, [candidates[k] for k in index], starts, merge=False).items():
+            out[index[j]] = r
+    return out
+
+
+def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> list[Reflector | None]:
+    """Every hyperbola re-picked along its curve at velocity v and fitted with it fixed (None: too few picks)."""
+    out: list[Reflector | None] = [None] * len(reflectors)
+    if not reflectors:
+        return out
+    first = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
+    done = [(k, r, f) for k, (r, f) in enumerate(zip(reflectors, first, strict=True)) if f is not None]
+    curves = [(v, f.radius_m, f.depth_m, f.x0_m) for _, _, f in done]
+    again = _pick_all(prep, [r.candidate for _, r, _ in done], curves, 0.3)
+    refits = fit_cylinders(prep, again, v, free_velocity=False)
+    for j, (k, r, f) in enumerate(done):
+        refit = refits[j]
+        if refit is not None and len(again[j].x_m) >= 0.8 * len(r.picks.x_m):
+            r = replace(r, picks=again[j], fit=refit)
         else:
-            out.append(Reflector(cands[i], picks[i], first_fit, starts[i][3]))
-    return tuple(out)
+            r = replace(r, fit=f)
+        assert r.fit is not None
+        out[k] = replace(r, coherence=curve_coherence(prep, r.picks, r.fit))
+    return out
 
 
 def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> tuple[Reflector, ...]:
     """Every hyperbola re-picked along its curve at the line's velocity and fitted with it fixed; one per target."""
-    if not reflectors:
-        return ()
-    first = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
-    done = [(r, f) for r, f in zip(reflectors, first, strict=True) if f is not None]
-    curves = [(v, f.radius_m, f.depth_m, f.x0_m) for _, f in done]
-    again = _pick_all(prep, [r.candidate for r, _ in done], curves, 0.3)
-    refits = fit_cylinders(prep, again, v, free_velocity=False)
-    fitted: list[Reflector] = []
-    for k, (r, f) in enumerate(done):
-        refit = refits[k]
-        if refit is not None and len(again[k].x_m) >= 0.8 * len(r.picks.x_m):
-            r = replace(r, picks=again[k], fit=refit)
-        else:
-            r = replace(r, fit=f)
-        assert r.fit is not None
-        fitted.append(replace(r, coherence=curve_coherence(prep, r.picks, r.fit)))
+    fitted = [r for r in refit_each_at_velocity(prep, reflectors, v) if r is not None]
     # The strongest stands for any others that landed on the same target.
     fitted.sort(key=lambda r: -r.candidate.amplitude)
     out: list[Reflector] = []

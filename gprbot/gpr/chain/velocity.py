@@ -38,6 +38,7 @@ MULTIPLE_TIME_TOLERANCE = 0.15  # of twice the primary's apex time
 MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
 SHALLOW_M = 0.06  # FDTD dev half: tops above ~5 cm voted 20-50 % off
 FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight
+GATHER_CELLS = 400_000  # samples gathered at once by `focus`
 
 
 @dataclass(frozen=True)
@@ -80,13 +81,14 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     frac = s - i0
     cols = np.arange(max(0, column - half), min(nx, column + half + 1))
     out = np.zeros(len(velocities))
-    for c in cols:  # one image column at a time keeps the gather small
-        trace = c + lags
-        inside = (trace >= 0) & (trace < nx)
-        t = np.clip(trace, 0, nx - 1)[None, :, None]
-        values = prep.data[t, i0] * (1.0 - frac) + prep.data[t, i0 + 1] * frac
-        image = np.where(inside[None, :, None], values * weight, 0.0).sum(axis=1)  # (velocities, depths)
-        out = np.maximum(out, np.abs(image).max(axis=1))
+    block = max(1, GATHER_CELLS // i0.size)  # image columns per gather: few Python steps, bounded memory
+    for first in range(0, len(cols), block):
+        trace = cols[first : first + block, None] + lags[None, :]  # (columns, lags)
+        inside = ((trace >= 0) & (trace < nx))[:, None, :, None]
+        t = np.clip(trace, 0, nx - 1)[:, None, :, None]
+        values = prep.data[t, i0] * (1.0 - frac) + prep.data[t, i0 + 1] * frac  # (columns, velocities, lags, depths)
+        image = np.where(inside, values * weight, 0.0).sum(axis=2)
+        out = np.maximum(out, np.abs(image).max(axis=(0, 2)))
     return out
 
 
