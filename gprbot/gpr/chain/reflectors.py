@@ -32,6 +32,7 @@ TRIAL_VELOCITIES = np.geomspace(0.04, 0.25, 24)
 TRIAL_RADII = np.array([0.0, 0.012, 0.03, 0.06])
 SAME_TARGET_M = 0.03
 SAME_TARGET_RADIUS_CAP_M = 0.02
+SCAN_BATCH = 8  # candidates per semblance gather
 
 
 @dataclass(frozen=True)
@@ -54,19 +55,25 @@ def line_table(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> Trav
     return travel_table(prep, TRIAL_VELOCITIES, z_max, max(2, max_lag))
 
 
-def _first_curve(
-    prep: PreparedBScan, table: TravelTable, cand: ApexCandidate
-) -> tuple[float, float, float, float] | None:
-    """(v, radius, centre depth, coherence) of the candidate's best semblance over the trial grid."""
-    zc = centre_depths(table, cand.t_ns, TRIAL_RADII)
-    samples = curve_samples(table, zc, TRIAL_RADII, prep.t0_ns, prep.dt_ns)
+def _first_curves(
+    prep: PreparedBScan, table: TravelTable, cands: Sequence[ApexCandidate]
+) -> list[tuple[float, float, float, float] | None]:
+    """(v, radius, centre depth, coherence) of each candidate's best semblance over the trial grid."""
+    out: list[tuple[float, float, float, float] | None] = []
     half = max(1, round(0.25 * prep.period_ns / prep.dt_ns))
-    s = semblance(prep, cand.column, samples, table.lag_traces, aperture_mask(table, zc, prep.dx_m), half)
-    s = np.where(np.isfinite(zc), s, 0.0)
-    i, j = np.unravel_index(int(np.argmax(s)), s.shape)
-    if not np.isfinite(zc[i, j]):
-        return None
-    return float(TRIAL_VELOCITIES[i]), float(TRIAL_RADII[j]), float(zc[i, j]), float(s[i, j])
+    for first in range(0, len(cands), SCAN_BATCH):  # a few candidates at a time bounds the gather's memory
+        batch = cands[first : first + SCAN_BATCH]
+        zc = centre_depths(table, np.array([c.t_ns for c in batch]), TRIAL_RADII)  # (batch, nv, nr)
+        samples = curve_samples(table, zc, TRIAL_RADII, prep.t0_ns, prep.dt_ns)
+        columns = np.array([c.column for c in batch], dtype=np.intp)[:, None, None]
+        s = semblance(prep, columns, samples, table.lag_traces, aperture_mask(table, zc, prep.dx_m), half)
+        s = np.where(np.isfinite(zc), s, 0.0)
+        for k in range(len(batch)):
+            i, j = np.unravel_index(int(np.argmax(s[k])), s[k].shape)
+            ok = np.isfinite(zc[k, i, j])
+            out.append((float(TRIAL_VELOCITIES[i]), float(TRIAL_RADII[j]), float(zc[k, i, j]), float(s[k, i, j]))
+                       if ok else None)
+    return out
 
 
 def _same_target(a: CylinderFit, b: CylinderFit) -> bool:
@@ -118,7 +125,7 @@ def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> 
     table = line_table(prep, candidates)
     if table is None:
         return ()
-    firsts = [(c, _first_curve(prep, table, c)) for c in candidates]
+    firsts = list(zip(candidates, _first_curves(prep, table, candidates), strict=True))
     cands = [c for c, f in firsts if f is not None]
     starts = [f for _, f in firsts if f is not None]
     if not cands:
@@ -131,7 +138,7 @@ def fit_each(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> list[R
     firsts: list[tuple[float, float, float, float] | None] = []
     for c in candidates:
         table = line_table(prep, [c])
-        firsts.append(None if table is None else _first_curve(prep, table, c))
+        firsts.append(None if table is None else _first_curves(prep, table, [c])[0])
     index = [k for k, f in enumerate(firsts) if f is not None]
     out: list[Reflector | None] = [None] * len(candidates)
     if index:

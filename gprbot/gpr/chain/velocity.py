@@ -69,8 +69,10 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     reach = math.ceil(float(z.max()) * tan_ap / prep.dx_m)
     lags = np.arange(-reach, reach + 1)
     horiz = np.abs(lags)[None, :, None] * prep.dx_m
-    lag_m = np.asarray(lags[None, :, None] * prep.dx_m, dtype=np.float64)
-    times = cylinder_time(lag_m, 0.0, z, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)
+    # A common-offset curve is even in the lag (the two legs swap): time the lags ≥ 0 and mirror them.
+    ahead = np.asarray(np.arange(reach + 1)[None, :, None] * prep.dx_m, dtype=np.float64)
+    times = cylinder_time(ahead, 0.0, z, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)
+    times = np.concatenate([times[:, :0:-1], times], axis=1)
     sample = (times + prep.t0_ns) / prep.dt_ns
     ratio = horiz / (z * tan_ap)
     taper = np.where(ratio <= 0.7, 1.0, 0.5 * (1.0 + np.cos(np.pi * np.clip(ratio - 0.7, 0.0, 0.3) / 0.3)))
