@@ -90,7 +90,8 @@ def semblance(
     w = np.arange(-half_window, half_window + 1)
     s = np.rint(samples).astype(np.intp)[..., None] + w  # (..., nk, nw)
     valid = aperture[..., None] & inside[..., None] & (s >= 0) & (s < ns)
-    vals = np.where(valid, prep.data[np.clip(cols, 0, nx - 1)[..., None], np.clip(s, 0, ns - 1)], 0.0)
+    flat = np.clip(cols, 0, nx - 1)[..., None] * ns + np.clip(s, 0, ns - 1)  # one flat index: a faster gather
+    vals = np.where(valid, prep.data.ravel()[flat], 0.0)
     n = valid[..., 0].sum(axis=-1)
     stacked = (vals.sum(axis=-2) ** 2).sum(axis=-1)
     energy = (vals * vals).sum(axis=(-2, -1))

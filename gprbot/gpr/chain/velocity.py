@@ -81,15 +81,16 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     s = np.clip(sample, 0.0, ns - 1.001)
     i0 = s.astype(np.intp)
     frac = s - i0
+    w_lo, w_hi = weight * (1.0 - frac), weight * frac  # the linear interpolation folded into the weights
+    # Traces beyond the line's ends are zeros: pad by the reach, then one flat index serves every gather.
+    flat = np.pad(prep.data, ((reach, reach), (0, 0))).ravel()
+    at_first = (lags + reach)[None, :, None] * ns + i0  # flat index for the window's first column
     cols = np.arange(max(0, column - half), min(nx, column + half + 1))
     out = np.zeros(len(velocities))
     block = max(1, GATHER_CELLS // i0.size)  # image columns per gather: few Python steps, bounded memory
     for first in range(0, len(cols), block):
-        trace = cols[first : first + block, None] + lags[None, :]  # (columns, lags)
-        inside = ((trace >= 0) & (trace < nx))[:, None, :, None]
-        t = np.clip(trace, 0, nx - 1)[:, None, :, None]
-        values = prep.data[t, i0] * (1.0 - frac) + prep.data[t, i0 + 1] * frac  # (columns, velocities, lags, depths)
-        image = np.where(inside, values * weight, 0.0).sum(axis=2)
+        idx = at_first + (cols[first : first + block] * ns)[:, None, None, None]  # (columns, velocities, lags, depths)
+        image = (flat[idx] * w_lo + flat[idx + 1] * w_hi).sum(axis=2)
         out = np.maximum(out, np.abs(image).max(axis=(0, 2)))
     return out
 
