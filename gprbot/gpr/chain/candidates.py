@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.chain.prepare import PreparedBScan
 
 SNR_MIN = 6.0  # envelope over the noise's standard deviation
@@ -90,9 +91,7 @@ def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
     out = []
     ns = env.shape[1]
     for c, r in picked[:limit]:
-        a, b, d = (env[c, r - 1], env[c, r], env[c, r + 1]) if 0 < r < ns - 1 else (0.0, 1.0, 0.0)
-        denom = a - 2.0 * b + d
-        frac = 0.0 if denom == 0 else float(np.clip(0.5 * (a - d) / denom, -0.5, 0.5))
+        frac = peak_offset(env[c], r)
         lo, hi = max(0, r - half), min(ns, r + half + 1)
         lobe = lo + int(np.argmax(np.abs(prep.data[c, lo:hi])))
         out.append(ApexCandidate(c, r + frac, (r + frac) * prep.dt_ns - prep.t0_ns, float(env[c, r]),

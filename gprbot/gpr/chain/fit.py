@@ -30,6 +30,7 @@ MIN_PICKS = 5
 PICK_STD_PERIODS = 0.03  # floor of a pick's timing error, in periods
 ROBUST_SCALE = 2.0  # soft-L1 scale, in pick standard deviations
 ITERATIONS = 20
+STEP_TOLERANCE = 1e-5  # m (x0, top, radius) and m/ns (velocity): 10 µm, 0.01 % of concrete's velocity
 START_RADII_M = np.array([0.01])
 
 
@@ -98,40 +99,48 @@ def fit_cylinders(
     hi = np.stack([x.max(axis=1) + 0.05, np.full(len(x), 5.0), np.full(len(x), R_MAX_M)]
                   + ([np.full(len(x), V_BOUNDS[1])] if free_velocity else []), axis=1)
 
-    def residual_and_jacobian(q: FloatArray) -> tuple[FloatArray, FloatArray]:
-        vel = q[:, 3:4] if free_velocity else v0[:, None]
+    def residual_and_jacobian(q: FloatArray, rows: NDArray[np.intp]) -> tuple[FloatArray, FloatArray]:
+        xs, ts, ms = x[rows], t[rows], mask[rows]
+        vel = q[:, 3:4] if free_velocity else v0[rows, None]
         zc = q[:, 1:2] + q[:, 2:3]
-        model, g_x0, g_zc, g_r, g_v = cylinder_time_gradient(x, q[:, 0:1], zc, q[:, 2:3], vel, h, off)
+        model, g_x0, g_zc, g_r, g_v = cylinder_time_gradient(xs, q[:, 0:1], zc, q[:, 2:3], vel, h, off)
         cols = [g_x0, g_zc, g_r + g_zc] + ([g_v] if free_velocity else [])
-        jac = np.stack([np.where(mask, g / sigma_t, 0.0) for g in cols], axis=-1)
-        return np.where(mask, (model - t) / sigma_t, 0.0), jac
+        jac = np.stack([np.where(ms, g / sigma_t, 0.0) for g in cols], axis=-1)
+        return np.where(ms, (model - ts) / sigma_t, 0.0), jac
 
     def cost(r: FloatArray) -> FloatArray:
         return np.asarray(np.sum(2.0 * ROBUST_SCALE**2 * (np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2) - 1.0), axis=1))
 
     lam = np.full(len(x), 1e-2)
-    r, J = residual_and_jacobian(p)
+    r, J = residual_and_jacobian(p, rows)
     c = cost(r)
+    active = rows
     for _ in range(ITERATIONS):
-        w = 1.0 / np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2)  # soft-L1 as iteratively reweighted least squares
-        JtW = np.swapaxes(J * w[..., None], 1, 2)
-        A = JtW @ J
-        g = np.einsum("bpn,bn->bp", JtW, r)
+        # Only members still improving are iterated: a converged one is frozen (most of a batch converges
+        # in a few steps, and the slowest used to set the work for all).
+        ra, Ja, pa, la = r[active], J[active], p[active], lam[active]
+        w = 1.0 / np.sqrt(1.0 + (ra / ROBUST_SCALE) ** 2)  # soft-L1 as iteratively reweighted least squares
+        JtW = np.swapaxes(Ja * w[..., None], 1, 2)
+        A = JtW @ Ja
+        g = np.einsum("bpn,bn->bp", JtW, ra)
         diag = np.einsum("bpp->bp", A) + 1e-12
-        damped = A + lam[:, None, None] * np.einsum("bp,pq->bpq", diag, np.eye(n_par))
+        damped = A + la[:, None, None] * np.einsum("bp,pq->bpq", diag, np.eye(n_par))
         step = -np.linalg.solve(damped, g[..., None])[..., 0]
-        trial = np.clip(p + step, lo, hi)
-        r_trial, J_trial = residual_and_jacobian(trial)
+        trial = np.clip(pa + step, lo[active], hi[active])
+        r_trial, J_trial = residual_and_jacobian(trial, active)
         c_trial = cost(r_trial)
-        better = c_trial < c
-        p = np.where(better[:, None], trial, p)
-        r = np.where(better[:, None], r_trial, r)
-        J = np.where(better[:, None, None], J_trial, J)
-        gain = np.where(better, (c - c_trial) / np.maximum(c, 1e-12), 0.0)
-        c = np.where(better, c_trial, c)
-        lam = np.where(better, lam * 0.3, lam * 10.0)
-        # Done when no member still improves by more than a part in 10⁴ (or all gave up).
-        if np.all((better & (gain < 1e-4)) | (lam > 1e6)):
+        better = c_trial < c[active]
+        gain = np.where(better, (c[active] - c_trial) / np.maximum(c[active], 1e-12), 0.0)
+        p[active] = np.where(better[:, None], trial, pa)
+        r[active] = np.where(better[:, None], r_trial, ra)
+        J[active] = np.where(better[:, None, None], J_trial, Ja)
+        c[active] = np.where(better, c_trial, c[active])
+        lam[active] = np.where(better, la * 0.3, la * 10.0)
+        # Done: improving by less than a part in 10⁴, a rejected step that was already tiny (at the minimum
+        # a rejection only grows the damping, ~8 more tries before giving up), or given up.
+        tiny = np.abs(step).max(axis=1) < STEP_TOLERANCE
+        active = active[~((better & (gain < 1e-4)) | (~better & tiny) | (lam[active] > 1e6))]
+        if not len(active):
             break
     best = c.reshape(n_starts, n_sel).argmin(axis=0) * n_sel + np.arange(n_sel)
     for k, i in enumerate(usable):

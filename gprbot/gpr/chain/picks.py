@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.gpr.chain.candidates import ApexCandidate
+from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.chain.prepare import PreparedBScan
 
 FloatArray = NDArray[np.float64]
@@ -35,15 +36,6 @@ class Picks:
     amplitude: FloatArray
     left: int
     right: int
-
-
-def _refine(y: FloatArray, i: int) -> float:
-    """Sub-sample position of the maximum of y at index i (three-point parabola)."""
-    if i <= 0 or i >= len(y) - 1:
-        return float(i)
-    a, b, c = y[i - 1], y[i], y[i + 1]
-    denom = a - 2.0 * b + c
-    return float(i) if denom == 0 else float(i + np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
 
 
 def pick_along(
@@ -73,7 +65,7 @@ def pick_along(
                 break
             e = prep.envelope[col, lo:hi]
             k = int(np.argmax(e))
-            s = lo + _refine(e, k)
+            s = lo + k + peak_offset(e, k)
             # Away from its apex a hyperbola only gets later: an earlier peak belongs to another event.
             earlier = s * prep.dt_ns < last - MAX_EARLIER_PERIODS * prep.period_ns
             if e[k] < floor or k in (0, hi - lo - 1) or earlier:

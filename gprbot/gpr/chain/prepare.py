@@ -17,6 +17,7 @@ from scipy import signal
 
 from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, check_bscan
+from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.migration import resample_uniform
 from gprbot.gpr.preprocess import BACKGROUND_WINDOW_M, DEWOW, dewow, remove_background, remove_gain
 from gprbot.gpr.traveltime import C_M_PER_NS
@@ -65,12 +66,7 @@ def _direct_wave(mean_trace: FloatArray, dt_ns: float) -> tuple[float, float]:
     n = max(8, int(len(mean_trace) * _DIRECT_SEARCH_FRACTION))
     env = np.abs(signal.hilbert(mean_trace))[:n]
     i = int(np.argmax(env))
-    if 0 < i < len(env) - 1:
-        a, b, c = env[i - 1], env[i], env[i + 1]
-        denom = a - 2.0 * b + c
-        frac = 0.0 if denom == 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
-    else:
-        frac = 0.0
+    frac = peak_offset(env, i)
     half = max(1, n // 20)
     lobe = max(0, i - half) + int(np.argmax(np.abs(mean_trace[max(0, i - half) : i + half + 1])))
     return (i + frac) * dt_ns, 1.0 if mean_trace[lobe] >= 0 else -1.0

@@ -32,6 +32,7 @@ TRIAL_VELOCITIES = np.geomspace(0.04, 0.25, 24)
 TRIAL_RADII = np.array([0.0, 0.012, 0.03, 0.06])
 SAME_TARGET_M = 0.03
 SAME_TARGET_RADIUS_CAP_M = 0.02
+SCAN_BATCH = 8  # candidates per semblance gather
 
 
 @dataclass(frozen=True)
@@ -54,19 +55,25 @@ def line_table(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> Trav
     return travel_table(prep, TRIAL_VELOCITIES, z_max, max(2, max_lag))
 
 
-def _first_curve(
-    prep: PreparedBScan, table: TravelTable, cand: ApexCandidate
-) -> tuple[float, float, float, float] | None:
-    """(v, radius, centre depth, coherence) of the candidate's best semblance over the trial grid."""
-    zc = centre_depths(table, cand.t_ns, TRIAL_RADII)
-    samples = curve_samples(table, zc, TRIAL_RADII, prep.t0_ns, prep.dt_ns)
+def _first_curves(
+    prep: PreparedBScan, table: TravelTable, cands: Sequence[ApexCandidate]
+) -> list[tuple[float, float, float, float] | None]:
+    """(v, radius, centre depth, coherence) of each candidate's best semblance over the trial grid."""
+    out: list[tuple[float, float, float, float] | None] = []
     half = max(1, round(0.25 * prep.period_ns / prep.dt_ns))
-    s = semblance(prep, cand.column, samples, table.lag_traces, aperture_mask(table, zc, prep.dx_m), half)
-    s = np.where(np.isfinite(zc), s, 0.0)
-    i, j = np.unravel_index(int(np.argmax(s)), s.shape)
-    if not np.isfinite(zc[i, j]):
-        return None
-    return float(TRIAL_VELOCITIES[i]), float(TRIAL_RADII[j]), float(zc[i, j]), float(s[i, j])
+    for first in range(0, len(cands), SCAN_BATCH):  # a few candidates at a time bounds the gather's memory
+        batch = cands[first : first + SCAN_BATCH]
+        zc = centre_depths(table, np.array([c.t_ns for c in batch]), TRIAL_RADII)  # (batch, nv, nr)
+        samples = curve_samples(table, zc, TRIAL_RADII, prep.t0_ns, prep.dt_ns)
+        columns = np.array([c.column for c in batch], dtype=np.intp)[:, None, None]
+        s = semblance(prep, columns, samples, table.lag_traces, aperture_mask(table, zc, prep.dx_m), half)
+        s = np.where(np.isfinite(zc), s, 0.0)
+        for k in range(len(batch)):
+            i, j = np.unravel_index(int(np.argmax(s[k])), s[k].shape)
+            ok = np.isfinite(zc[k, i, j])
+            out.append((float(TRIAL_VELOCITIES[i]), float(TRIAL_RADII[j]), float(zc[k, i, j]), float(s[k, i, j]))
+                       if ok else None)
+    return out
 
 
 def _same_target(a: CylinderFit, b: CylinderFit) -> bool:
@@ -87,55 +94,84 @@ def _pick_all(
     return out
 
 
-def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> tuple[Reflector, ...]:
-    """One free-velocity cylinder fit per distinct hyperbola among the candidates (two rounds of picks)."""
-    table = line_table(prep, candidates)
-    if table is None:
-        return ()
-    firsts = [(c, _first_curve(prep, table, c)) for c in candidates]
-    cands = [c for c, f in firsts if f is not None]
-    starts = [f for _, f in firsts if f is not None]
-    if not cands:
-        return ()
+def _two_rounds(
+    prep: PreparedBScan, cands: Sequence[ApexCandidate], starts: Sequence[tuple[float, float, float, float]], *,
+    merge: bool,
+) -> dict[int, Reflector]:
+    """Picks along the first curves, free-velocity fits, merging (if asked), picks along the fits, refits."""
     curves = [(v, r, zc, float(prep.x_m[c.column])) for c, (v, r, zc, _) in zip(cands, starts, strict=True)]
     picks = _pick_all(prep, cands, curves, 0.5)
     fits = fit_cylinders(prep, picks, [s[0] for s in starts], free_velocity=True)
     # One reflector per target: the strongest candidate's fit stands for the others on the same hyperbola.
     kept: list[tuple[int, CylinderFit]] = []
     for i, f in enumerate(fits):
-        if f is not None and not any(_same_target(f, g) for _, g in kept):
+        if f is not None and not (merge and any(_same_target(f, g) for _, g in kept)):
             kept.append((i, f))
     curves = [(f.v, f.radius_m, f.depth_m, f.x0_m) for _, f in kept]
     again = _pick_all(prep, [cands[i] for i, _ in kept], curves, 0.3)
     refits = fit_cylinders(prep, again, [c[0] for c in curves], free_velocity=True)
-    out = []
+    out = {}
     for k, (i, first_fit) in enumerate(kept):
         refit = refits[k]
         if refit is not None and len(again[k].x_m) >= 0.8 * len(picks[i].x_m):
-            out.append(Reflector(cands[i], again[k], refit, starts[i][3]))
+            out[i] = Reflector(cands[i], again[k], refit, starts[i][3])
         else:
-            out.append(Reflector(cands[i], picks[i], first_fit, starts[i][3]))
-    return tuple(out)
+            out[i] = Reflector(cands[i], picks[i], first_fit, starts[i][3])
+    return out
+
+
+def fit_reflectors(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> tuple[Reflector, ...]:
+    """One free-velocity cylinder fit per distinct hyperbola among the candidates (two rounds of picks)."""
+    table = line_table(prep, candidates)
+    if table is None:
+        return ()
+    firsts = list(zip(candidates, _first_curves(prep, table, candidates), strict=True))
+    cands = [c for c, f in firsts if f is not None]
+    starts = [f for _, f in firsts if f is not None]
+    if not cands:
+        return ()
+    return tuple(_two_rounds(prep, cands, starts, merge=True).values())
+
+
+def fit_each(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> list[Reflector | None]:
+    """Every candidate fitted as if it were the only one (its own table, no merging), in one batch."""
+    firsts: list[tuple[float, float, float, float] | None] = []
+    for c in candidates:
+        table = line_table(prep, [c])
+        firsts.append(None if table is None else _first_curves(prep, table, [c])[0])
+    index = [k for k, f in enumerate(firsts) if f is not None]
+    out: list[Reflector | None] = [None] * len(candidates)
+    if index:
+        starts = [f for f in firsts if f is not None]
+        for j, r in _two_rounds(prep, [candidates[k] for k in index], starts, merge=False).items():
+            out[index[j]] = r
+    return out
+
+
+def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> list[Reflector | None]:
+    """Every hyperbola re-picked along its curve at velocity v and fitted with it fixed (None: too few picks)."""
+    out: list[Reflector | None] = [None] * len(reflectors)
+    if not reflectors:
+        return out
+    first = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
+    done = [(k, r, f) for k, (r, f) in enumerate(zip(reflectors, first, strict=True)) if f is not None]
+    curves = [(v, f.radius_m, f.depth_m, f.x0_m) for _, _, f in done]
+    again = _pick_all(prep, [r.candidate for _, r, _ in done], curves, 0.3)
+    refits = fit_cylinders(prep, again, v, free_velocity=False)
+    for j, (k, r, f) in enumerate(done):
+        refit = refits[j]
+        if refit is not None and len(again[j].x_m) >= 0.8 * len(r.picks.x_m):
+            r = replace(r, picks=again[j], fit=refit)
+        else:
+            r = replace(r, fit=f)
+        assert r.fit is not None
+        out[k] = replace(r, coherence=curve_coherence(prep, r.picks, r.fit))
+    return out
 
 
 def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> tuple[Reflector, ...]:
     """Every hyperbola re-picked along its curve at the line's velocity and fitted with it fixed; one per target."""
-    if not reflectors:
-        return ()
-    first = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
-    done = [(r, f) for r, f in zip(reflectors, first, strict=True) if f is not None]
-    curves = [(v, f.radius_m, f.depth_m, f.x0_m) for _, f in done]
-    again = _pick_all(prep, [r.candidate for r, _ in done], curves, 0.3)
-    refits = fit_cylinders(prep, again, v, free_velocity=False)
-    fitted: list[Reflector] = []
-    for k, (r, f) in enumerate(done):
-        refit = refits[k]
-        if refit is not None and len(again[k].x_m) >= 0.8 * len(r.picks.x_m):
-            r = replace(r, picks=again[k], fit=refit)
-        else:
-            r = replace(r, fit=f)
-        assert r.fit is not None
-        fitted.append(replace(r, coherence=curve_coherence(prep, r.picks, r.fit)))
+    fitted = [r for r in refit_each_at_velocity(prep, reflectors, v) if r is not None]
     # The strongest stands for any others that landed on the same target.
     fitted.sort(key=lambda r: -r.candidate.amplitude)
     out: list[Reflector] = []

@@ -48,15 +48,17 @@ def travel_table(prep: PreparedBScan, velocities: FloatArray, z_max_m: float, ma
     return TravelTable(np.asarray(velocities, dtype=np.float64), lag_idx.astype(np.float64), z, t)
 
 
-def centre_depths(table: TravelTable, apex_t_ns: float, radii: FloatArray) -> FloatArray:
-    """Centre depth (nv, nr) whose apex time matches `apex_t_ns` for each trial velocity and radius (NaN: none)."""
-    out = np.full((len(table.velocities), len(radii)), np.nan)
+def centre_depths(table: TravelTable, apex_t_ns: FloatArray | float, radii: FloatArray) -> FloatArray:
+    """Centre depth (..., nv, nr) whose apex time matches each `apex_t_ns` (...) per trial velocity and radius
+    (NaN: none)."""
+    apex = np.asarray(apex_t_ns, dtype=np.float64)[..., None]
+    out = np.full((*apex.shape[:-1], len(table.velocities), len(radii)), np.nan)
     zero = int(np.argmin(np.abs(table.lag_traces)))
     for i, v in enumerate(table.velocities):
         column = table.t_ns[i, zero]
-        target = apex_t_ns + 2.0 * radii / v
+        target = apex + 2.0 * radii / v
         ok = (target >= column[0]) & (target <= column[-1])
-        out[i, ok] = np.interp(target[ok], column, table.z_m)
+        out[..., i, :][ok] = np.interp(target[ok], column, table.z_m)
     return out
 
 
@@ -73,21 +75,23 @@ def curve_samples(table: TravelTable, zc: FloatArray, radii: FloatArray, t0_ns: 
 
 
 def semblance(
-    prep: PreparedBScan, column: int, samples: FloatArray, lags: FloatArray, aperture: NDArray[np.bool_],
-    half_window: int,
+    prep: PreparedBScan, column: int | NDArray[np.intp], samples: FloatArray, lags: FloatArray,
+    aperture: NDArray[np.bool_], half_window: int,
 ) -> FloatArray:
     """Semblance (...,) of the traces at column+lag along `samples` (..., nk), within a ±half_window window.
 
-    Lags outside the line or the aperture count as absent (not as zeros), so that a hyperbola near the
-    line's end is judged on the flank that exists.
+    `column` is one apex column or an array of them broadcasting against samples' leading axes. Lags
+    outside the line or the aperture count as absent (not as zeros), so that a hyperbola near the line's
+    end is judged on the flank that exists.
     """
     nx, ns = prep.data.shape
-    cols = column + lags.astype(np.intp)
+    cols = np.asarray(column, dtype=np.intp)[..., None] + lags.astype(np.intp)
     inside = (cols >= 0) & (cols < nx)
     w = np.arange(-half_window, half_window + 1)
     s = np.rint(samples).astype(np.intp)[..., None] + w  # (..., nk, nw)
-    valid = aperture[..., None] & inside[:, None] & (s >= 0) & (s < ns)
-    vals = np.where(valid, prep.data[np.clip(cols, 0, nx - 1)[:, None], np.clip(s, 0, ns - 1)], 0.0)
+    valid = aperture[..., None] & inside[..., None] & (s >= 0) & (s < ns)
+    flat = np.clip(cols, 0, nx - 1)[..., None] * ns + np.clip(s, 0, ns - 1)  # one flat index: a faster gather
+    vals = np.where(valid, prep.data.ravel()[flat], 0.0)
     n = valid[..., 0].sum(axis=-1)
     stacked = (vals.sum(axis=-2) ** 2).sum(axis=-1)
     energy = (vals * vals).sum(axis=(-2, -1))

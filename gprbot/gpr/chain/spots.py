@@ -25,8 +25,9 @@ from gprbot.gpr.chain.candidates import ApexCandidate
 from gprbot.gpr.chain.classify import MIN_FLANK_PICKS, RADIUS_SUPPORT, ClassifiedDetection
 from gprbot.gpr.chain.fit import R_MAX_M, CylinderFit
 from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.chain.prepare import PreparedBScan
-from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
+from gprbot.gpr.chain.reflectors import Reflector, fit_each, refit_each_at_velocity
 
 FloatArray = NDArray[np.float64]
 
@@ -54,15 +55,6 @@ class Spot:
     column: int  # of the prepared grid
 
 
-def _refined(values: FloatArray, i: int) -> float:
-    """Sub-cell offset of a maximum at index i (three-point parabola), in cells."""
-    if i <= 0 or i >= len(values) - 1:
-        return 0.0
-    a, b, c = values[i - 1], values[i], values[i + 1]
-    denom = a - 2.0 * b + c
-    return 0.0 if denom == 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
-
-
 def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v: float) -> tuple[Spot, ...]:
     """Compact spots of the migrated envelope (nz, nx) below the direct wave, strongest first."""
     if len(z_m) < 3 or env.shape[1] < 3:
@@ -84,8 +76,8 @@ def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v
         left, right = e[i, max(0, j - side)], e[i, min(e.shape[1] - 1, j + side)]
         if min(left, right) >= COMPACT_RATIO * e[i, j]:
             continue  # flat to both sides: a layer or the slab's bottom, not a diffraction's focus
-        x = float(prep.x_m[j] + _refined(e[i, :], j) * prep.dx_m)
-        top = float(z_m[i] + _refined(e[:, j], i) * dz)
+        x = float(prep.x_m[j] + peak_offset(e[i, :], j) * prep.dx_m)
+        top = float(z_m[i] + peak_offset(e[:, j], i) * dz)
         out.append(Spot(x, top, float(e[i, j]), float(e[i, j] / band_level[i]), int(j)))
     out.sort(key=lambda s: -s.brightness)
     return tuple(out[: max(4, round(MAX_SPOTS_PER_M * float(np.ptp(prep.x_m))))])
@@ -151,21 +143,25 @@ def spot_candidate(prep: PreparedBScan, spot: Spot, v: float) -> ApexCandidate |
     return ApexCandidate(spot.column, sample, t, amplitude, amplitude / prep.noise, polarity)
 
 
-def _seeded(prep: PreparedBScan, spot: Spot, v: float) -> Reflector | None:
-    """The cylinder fit seeded at the spot, when it lands on the spot (its radius is then measured)."""
-    cand = spot_candidate(prep, spot, v)
-    if cand is None:
-        return None
+def _seeded_all(prep: PreparedBScan, spots: Sequence[Spot], v: float) -> list[Reflector | None]:
+    """Each spot's cylinder fit seeded there, kept when it lands on the spot (its radius is then measured)."""
+    cands = [spot_candidate(prep, spot, v) for spot in spots]
+    index = [k for k, c in enumerate(cands) if c is not None]
+    fitted = fit_each(prep, [c for c in cands if c is not None])
+    present = [(k, r) for k, r in zip(index, fitted, strict=True) if r is not None]
+    refitted = refit_each_at_velocity(prep, [r for _, r in present], v)
     agree = 0.5 * v * AGREE_PERIODS * prep.period_ns
-    for r in refit_at_velocity(prep, fit_reflectors(prep, [cand]), v):
-        if r.fit is not None and abs(r.fit.top_m - spot.top_m) <= agree and abs(r.fit.x0_m - spot.x_m) <= agree:
-            return r
-    return None
+    out: list[Reflector | None] = [None] * len(spots)
+    for (k, _), r in zip(present, refitted, strict=True):
+        spot = spots[k]
+        if r is not None and r.fit is not None and abs(r.fit.top_m - spot.top_m) <= agree \
+                and abs(r.fit.x0_m - spot.x_m) <= agree:
+            out[k] = r
+    return out
 
 
-def _spot_detection(prep: PreparedBScan, spot: Spot, v: float) -> ClassifiedDetection | None:
+def _spot_detection(prep: PreparedBScan, spot: Spot, seeded: Reflector | None, v: float) -> ClassifiedDetection | None:
     """A detection at a spot whose seeded fit agrees with it and lines the traces up; None otherwise."""
-    seeded = _seeded(prep, spot, v)
     if seeded is None or seeded.fit is None or seeded.coherence < MIN_SPOT_COHERENCE:
         return None
     # Both flanks must be there (a layer's end or a dipping event has one); the spot, not the misfit,
@@ -192,13 +188,21 @@ def spot_detections(prep: PreparedBScan, spots: Sequence[Spot], detections: Sequ
     """Detections at the spots no detection explains and that are no echo of a stronger target."""
     wavelength = v / (prep.frequency_mhz / 1000.0)
     known = [(d.x_m, d.fit.top_m, _fitted_radius(d)) for d in detections]
+
+    def open_spot(spot: Spot) -> bool:
+        explained = any(abs(spot.x_m - x) <= EXPLAINED_M + r and abs(spot.top_m - top) <= EXPLAINED_M
+                        for x, top, r in known)
+        return not explained and not is_echo_spot(spot, known, wavelength)
+
+    # Shallow first: an echo is judged after its primary. The seeded fits of every spot still open are
+    # made in one batch (one fit per spot costs a batched fit's overhead each); `known` only grows, so a
+    # spot closed now stays closed.
+    todo = [s for s in sorted(spots, key=lambda s: s.top_m) if open_spot(s)]
     out: list[ClassifiedDetection] = []
-    for spot in sorted(spots, key=lambda s: s.top_m):  # shallow first: an echo is judged after its primary
-        if any(abs(spot.x_m - x) <= EXPLAINED_M + r and abs(spot.top_m - top) <= EXPLAINED_M for x, top, r in known):
+    for spot, seeded in zip(todo, _seeded_all(prep, todo, v), strict=True):
+        if not open_spot(spot):
             continue
-        if is_echo_spot(spot, known, wavelength):
-            continue
-        det = _spot_detection(prep, spot, v)
+        det = _spot_detection(prep, spot, seeded, v)
         if det is None:
             continue
         known.append((det.x_m, det.fit.top_m, _fitted_radius(det)))

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.chain.prepare import PreparedBScan
 from gprbot.gpr.chain.reflectors import Reflector
 
@@ -37,6 +38,7 @@ MULTIPLE_TIME_TOLERANCE = 0.15  # of twice the primary's apex time
 MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
 SHALLOW_M = 0.06  # FDTD dev half: tops above ~5 cm voted 20-50 % off
 FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight
+GATHER_CELLS = 400_000  # samples gathered at once by `focus`
 
 
 @dataclass(frozen=True)
@@ -67,8 +69,10 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     reach = math.ceil(float(z.max()) * tan_ap / prep.dx_m)
     lags = np.arange(-reach, reach + 1)
     horiz = np.abs(lags)[None, :, None] * prep.dx_m
-    lag_m = np.asarray(lags[None, :, None] * prep.dx_m, dtype=np.float64)
-    times = cylinder_time(lag_m, 0.0, z, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)
+    # A common-offset curve is even in the lag (the two legs swap): time the lags ≥ 0 and mirror them.
+    ahead = np.asarray(np.arange(reach + 1)[None, :, None] * prep.dx_m, dtype=np.float64)
+    times = cylinder_time(ahead, 0.0, z, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)
+    times = np.concatenate([times[:, :0:-1], times], axis=1)
     sample = (times + prep.t0_ns) / prep.dt_ns
     ratio = horiz / (z * tan_ap)
     taper = np.where(ratio <= 0.7, 1.0, 0.5 * (1.0 + np.cos(np.pi * np.clip(ratio - 0.7, 0.0, 0.3) / 0.3)))
@@ -77,15 +81,17 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     s = np.clip(sample, 0.0, ns - 1.001)
     i0 = s.astype(np.intp)
     frac = s - i0
+    w_lo, w_hi = weight * (1.0 - frac), weight * frac  # the linear interpolation folded into the weights
+    # Traces beyond the line's ends are zeros: pad by the reach, then one flat index serves every gather.
+    flat = np.pad(prep.data, ((reach, reach), (0, 0))).ravel()
+    at_first = (lags + reach)[None, :, None] * ns + i0  # flat index for the window's first column
     cols = np.arange(max(0, column - half), min(nx, column + half + 1))
     out = np.zeros(len(velocities))
-    for c in cols:  # one image column at a time keeps the gather small
-        trace = c + lags
-        inside = (trace >= 0) & (trace < nx)
-        t = np.clip(trace, 0, nx - 1)[None, :, None]
-        values = prep.data[t, i0] * (1.0 - frac) + prep.data[t, i0 + 1] * frac
-        image = np.where(inside[None, :, None], values * weight, 0.0).sum(axis=1)  # (velocities, depths)
-        out = np.maximum(out, np.abs(image).max(axis=1))
+    block = max(1, GATHER_CELLS // i0.size)  # image columns per gather: few Python steps, bounded memory
+    for first in range(0, len(cols), block):
+        idx = at_first + (cols[first : first + block] * ns)[:, None, None, None]  # (columns, velocities, lags, depths)
+        image = (flat[idx] * w_lo + flat[idx + 1] * w_hi).sum(axis=2)
+        out = np.maximum(out, np.abs(image).max(axis=(0, 2)))
     return out
 
 
@@ -94,9 +100,7 @@ def _peak(curve: FloatArray, velocities: FloatArray) -> float | None:
     i = int(np.argmax(curve))
     if i in (0, len(curve) - 1):
         return None
-    a, b, c = curve[i - 1], curve[i], curve[i + 1]
-    denom = a - 2.0 * b + c
-    frac = 0.0 if denom >= 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
+    frac = peak_offset(curve, i)
     lv = np.log(velocities)
     return float(np.exp(lv[i] + frac * (lv[1] - lv[0])))
 
