@@ -234,3 +234,13 @@ def test_the_robot_runtime_loads_neither_the_simulated_world_nor_torch() -> None
             "print(bad); sys.exit(1 if bad else 0)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert done.returncode == 0, f"the daemon imports at start: {done.stdout}{done.stderr}"
+
+
+def test_no_wait_for_in_the_package() -> None:
+    """asyncio.timeout, never asyncio.wait_for: on 3.11 wait_for can swallow a cancel (the e-stop path)."""
+    calls = []
+    for module, path in _modules().items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Attribute) and node.attr == "wait_for" and ast.unparse(node.value) == "asyncio":
+                calls.append(f"{module}:{node.lineno}")
+    assert calls == []

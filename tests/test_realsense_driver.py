@@ -20,6 +20,7 @@ from gprbot.drivers.realsense.recording import SoftwareD435i, write_recording
 from gprbot.drivers.realsense.source import MotionReading, Reading, RealsenseSource, SourceEvent
 from gprbot.errors import DriverError
 from gprbot.messages import ImuSample, RawRgbdFrame, decode, encode
+from tests.aio import within
 
 rs = pytest.importorskip("pyrealsense2")
 
@@ -191,7 +192,7 @@ async def test_stop_in_the_middle_of_a_playback_returns(recording: Path) -> None
         seen += 1
         if seen == 5:
             break
-    await asyncio.wait_for(driver.stop(), 10.0)
+    await within(driver.stop(), 10.0)
     assert [m async for m in driver] == []
 
 

@@ -190,7 +190,8 @@ class RealsenseDriver:
                 if handoff.closed:
                     break
                 try:
-                    await asyncio.wait_for(handoff.wait(), None if self._playback else self.stall_timeout_s)
+                    async with asyncio.timeout(None if self._playback else self.stall_timeout_s):
+                        await handoff.wait()
                 except TimeoutError:
                     await self._reconnect(f"no frames for {self.stall_timeout_s} s")
                 continue
