@@ -230,14 +230,12 @@ def _rate(rate: Rate, cfg: object) -> float:
     return float(rate if isinstance(rate, float) else _lookup(cfg, rate))
 
 
-ENCODER_RATE_HZ = 50.0  # the runtime polls the encoders every 20 ms (CONTROL_PERIOD_S, the motion loop's)
-
 REGISTRY: dict[str, MessageSpec] = {spec.cls.__name__: spec for spec in (
     MessageSpec(Trace, True, (("gpr", "survey.trace_rate_hz"),)),
     MessageSpec(ImuSample, True, (("realsense.gyro", "realsense.gyro_hz"), ("realsense.accel", "realsense.accel_hz"))),
     MessageSpec(RawRgbdFrame, "realsense.record_frames", (("realsense.depth", "realsense.fps"),
                                                           ("realsense.color", "realsense.fps"))),
-    MessageSpec(WheelEncoders, True, (("motors", ENCODER_RATE_HZ),)),
+    MessageSpec(WheelEncoders, True, (("motors", "motors.poll_rate_hz"),)),
     MessageSpec(WheelSpeeds, True),  # commands, only while the wheels are driven
     MessageSpec(RgbdFrame, False),  # the metric form of RawRgbdFrame, made again on replay
     MessageSpec(VoMeasurement, True, (("vo", "realsense.fps"),)),

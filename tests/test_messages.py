@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from gprbot import messages
-from gprbot.config import Config, RealsenseConfig
+from gprbot.config import CONTROL_PERIOD_S, Config, RealsenseConfig
 from gprbot.drivers.health import DriverHealth
 from gprbot.messages import REGISTRY, WheelEncoders, encode, expected_rates
 
@@ -27,7 +27,7 @@ def test_every_message_dataclass_of_the_module_is_registered() -> None:
 def test_expected_rates_follow_the_config() -> None:
     cfg = Config()
     rates = expected_rates(cfg)
-    assert rates["gpr"] == cfg.survey.trace_rate_hz and rates["motors"] == messages.ENCODER_RATE_HZ
+    assert rates["gpr"] == cfg.survey.trace_rate_hz and rates["motors"] == 1.0 / CONTROL_PERIOD_S
     assert rates["realsense.gyro"] == cfg.realsense.gyro_hz and rates["realsense.color"] == cfg.realsense.fps
     fast = dataclasses.replace(cfg, realsense=RealsenseConfig(gyro_hz=200, accel_hz=63))
     assert REGISTRY["ImuSample"].expected_hz(fast) == 263.0

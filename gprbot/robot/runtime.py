@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from gprbot.config import SIMULATED, Config
+from gprbot.config import CONTROL_PERIOD_S, SIMULATED, Config
 from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.realsense.driver import RealsenseDriver
@@ -41,9 +41,6 @@ if TYPE_CHECKING:
     from gprbot.simulated.robot import SimRobot
 
 log = logging.getLogger(__name__)
-CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
-ENCODER_PERIOD_S = 0.02
-DEFAULT_SHELL_PORT = 7878
 ESTOP_REPEAT_S = 0.5  # while latched, a repeated e-stop re-sends the stop at most this often
 
 
@@ -89,7 +86,7 @@ class RobotRuntime:
                                    run_meta=self._run_meta, truth_axes=truth, links_fault=self._links_fault,
                                    may_resume=lambda: not (self.estopped or self.stopping))
         self.shell_host = shell_host
-        self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
+        self.shell_port = cfg.shell.port if shell_port is None else shell_port
         self.token_file = token_file
         self.shell: ShellServer | None = None
         self.web: ConsoleInfo | None = None  # set by the web console task while it listens
@@ -246,7 +243,7 @@ class RobotRuntime:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(0.25):
                         await motors.wait_connected()
-            next_t = max(next_t + ENCODER_PERIOD_S, self.clock())
+            next_t = max(next_t + CONTROL_PERIOD_S, self.clock())
             await asyncio.sleep(next_t - self.clock())
 
     async def _run_gpr(self, beat: Callable[[], None]) -> None:

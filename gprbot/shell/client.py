@@ -19,10 +19,11 @@ from pathlib import Path, PurePosixPath
 from types import TracebackType
 from typing import TypeVar
 
+from gprbot.config import DEFAULT_SHELL_PORT
 from gprbot.errors import GprbotError, ProtocolError
 from gprbot.shell.protocol import PayloadChunk, ReplyReader, ServerEvent, ServerReply
 
-DEFAULT_PORT = 7878
+DEFAULT_PORT = DEFAULT_SHELL_PORT
 _Item = TypeVar("_Item", ServerReply, PayloadChunk)
 REPLY_TIMEOUT_S = 30.0
 MAX_PULL_BYTES = 64 << 30  # 64 GiB: far above any run file (log segments are 64 MiB), far below 15 digits

@@ -86,7 +86,8 @@ class GprDriver:
         self._raw_sink = raw_sink  # (receive time, bytes) of every data-socket read, for the run log
         self._clock = clock
         self._sleep = sleep
-        self._stall_timeout_s = stall_timeout_s or max(MIN_STALL_TIMEOUT_S, STALL_PERIODS * cfg.trigger_period_s)
+        self._stall_timeout_s = (stall_timeout_s or cfg.stall_timeout_s
+                                 or max(MIN_STALL_TIMEOUT_S, STALL_PERIODS * cfg.trigger_period_s))
         self._backoff = (backoff_initial_s, backoff_max_s)
         self._http = SdkHttpClient(cfg.host, cfg.http_port, cfg.connect_timeout_s)
         self._health = HealthTracker("gpr")

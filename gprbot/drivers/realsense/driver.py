@@ -71,18 +71,21 @@ class RealsenseDriver:
         *,
         queue_size: int = 4096,  # readings: live, 6 s of IMU at 650 Hz before one is lost to a stalled loop
         frame_queue_size: int = 4,  # RGB-D frames among them, live (the oldest gives way)
-        stall_timeout_s: float = 3.0,
-        backoff_initial_s: float = 0.5,
-        backoff_max_s: float = 8.0,
-        jump_threshold_s: float = 0.1,
+        stall_timeout_s: float | None = None,  # None: realsense.stall_timeout_s (and so for the next three)
+        backoff_initial_s: float | None = None,
+        backoff_max_s: float | None = None,
+        jump_threshold_s: float | None = None,
         source_factory: SourceFactory = RealsenseSource,
         imu_to_base: NDArray[np.float64] | None = None,
     ):
         self.cfg, self._clock, self._factory = cfg, clock, source_factory
-        self.queue_size, self.stall_timeout_s = queue_size, stall_timeout_s
+        self.queue_size = queue_size
+        self.stall_timeout_s = cfg.stall_timeout_s if stall_timeout_s is None else stall_timeout_s
         self.frame_queue_size = frame_queue_size
-        self.backoff_initial_s, self.backoff_max_s = backoff_initial_s, backoff_max_s
-        self.jump_threshold_s = jump_threshold_s
+        first, longest = cfg.reconnect_backoff_s
+        self.backoff_initial_s = first if backoff_initial_s is None else backoff_initial_s
+        self.backoff_max_s = longest if backoff_max_s is None else backoff_max_s
+        self.jump_threshold_s = cfg.clock_jump_threshold_s if jump_threshold_s is None else jump_threshold_s
         self._imu_to_base = None if imu_to_base is None else np.asarray(imu_to_base, dtype=np.float64)
         self.reconnects = 0
         self._session = 0  # bumped when a source is given up: readings of older sources are stale
