@@ -114,8 +114,8 @@ def test_the_once_dead_device_keys_reach_the_drivers() -> None:
     from gprbot.drivers.gpr.driver import GprDriver
     from gprbot.drivers.realsense.driver import RealsenseDriver
 
-    cfg = parse_config("realsense: {stall_timeout_s: 7.5, reconnect_backoff_s: [0.25, 4.0], clock_jump_threshold_s: 0.3}\n"
-                       "gpr_device: {stall_timeout_s: 2.5}\n")
+    cfg = parse_config("realsense: {stall_timeout_s: 7.5, reconnect_backoff_s: [0.25, 4.0], "
+                       "clock_jump_threshold_s: 0.3}\ngpr_device: {stall_timeout_s: 2.5}\n")
     camera = RealsenseDriver(cfg.realsense)
     assert (camera.stall_timeout_s, camera.backoff_initial_s, camera.backoff_max_s, camera.jump_threshold_s) == (
         7.5, 0.25, 4.0, 0.3)
