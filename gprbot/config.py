@@ -97,6 +97,9 @@ class ReconstructionConfig:
     """Registration of slices in 3D and completion into a dense cloud."""
 
     completion: Literal["geometric", "gprnet"] = "geometric"
+    # The resampling/completion RNG's seed. None: sim.seed, which seeded it before this key existed, so
+    # older configs and run logs reconstruct to the same bytes; set it on the robot, which has no sim.
+    seed: int | None = None
     sparse_points: int = 1500
     dense_points: int = 8192
     cluster_distance_m: float = 0.08
@@ -336,6 +339,11 @@ class Config:
     retention: RetentionConfig = field(default_factory=RetentionConfig)
     georeference: GeoreferenceConfig | None = None
     models_dir: str | None = None  # where model files are looked up by name (default: checkout or package)
+
+    @property
+    def reconstruction_seed(self) -> int:
+        """The seed of the reconstruction's RNG (reconstruction.seed, else sim.seed as before that key)."""
+        return self.sim.seed if self.reconstruction.seed is None else self.reconstruction.seed
 
     @property
     def simulated(self) -> bool:

@@ -32,7 +32,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     by_line = split_by_line(sim.traces, line_windows(sim.plan))
     lever = cfg.mount.antenna_lever_arm_m
     bscans = {line: assemble_bscan(tr, sim.trajectory.estimated_poses, lever) for line, tr in by_line.items()}
-    direct = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
+    direct = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.reconstruction_seed))
     return {"cfg": cfg, "run_dir": run_dir, "sim": sim, "direct": direct}
 
 

@@ -33,7 +33,7 @@ def survey() -> tuple[Config, dict[int, BScan], SurveyResult]:
     by_line = split_by_line(sim.traces, line_windows(sim.plan))
     lever = cfg.mount.antenna_lever_arm_m
     bscans = {line: assemble_bscan(tr, sim.trajectory.estimated_poses, lever) for line, tr in by_line.items()}
-    return cfg, bscans, reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
+    return cfg, bscans, reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.reconstruction_seed))
 
 
 def assert_same_survey(got: SurveyResult, want: SurveyResult) -> None:

@@ -31,6 +31,7 @@ from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.infer.gprnet import gprnet_reconstruction
 from gprbot.infer.pipeline import gprnet_completion, interpret_line, survey_velocity
+from gprbot.motion.planner import survey_region as planned_region
 from gprbot.progress import track
 from gprbot.reconstruct.completion import Reconstruction, geometric_completion
 from gprbot.reconstruct.register import resample_cloud
@@ -59,8 +60,7 @@ def scene_config(base: Config, scene: Scene, spec: SurveySpec, method: str, comp
 def survey_region(spec: SurveySpec) -> tuple[float, float, float, float]:
     """The surveyed rectangle (xmin, xmax, ymin, ymax): lines ± half a spacing, as the dataset's truth."""
     half = 0.5 * spec.spacing_m
-    x0 = spec.start_xy[0]
-    return x0, x0 + spec.length_m, spec.line_y(0) - half, spec.line_y(spec.lines - 1) + half
+    return planned_region(spec.start_xy, spec.length_m, spec.lines, spec.spacing_m, across_margin_m=half)
 
 
 def pipe_scores(recon: Reconstruction, scene: Scene, region: tuple[float, float, float, float]) -> dict[str, Any]:

@@ -12,6 +12,7 @@ import numpy as np
 from gprbot import __version__, progress
 from gprbot.config import Config, to_dict
 from gprbot.infer.pipeline import reconstruct_survey, survey_steps
+from gprbot.motion.planner import survey_region as planned_region
 from gprbot.outputs.report_html import write_report_safely
 from gprbot.outputs.run_dir import write_survey_outputs
 from gprbot.reconstruct.survey_result import SurveyResult
@@ -37,8 +38,8 @@ class DemoResult:
 
 def survey_region(cfg: Config) -> tuple[float, float, float, float]:
     """The area the antenna covers: (xmin, xmax, ymin, ymax) in the site frame."""
-    x0, y0 = cfg.survey.start_xy_m
-    return (x0, x0 + cfg.survey.length_m, y0, y0 + (cfg.survey.lines - 1) * cfg.survey.spacing_m)
+    s = cfg.survey
+    return planned_region(s.start_xy_m, s.length_m, s.lines, s.spacing_m)
 
 
 def run_demo(cfg: Config, scene: Scene, out_dir: Path) -> DemoResult:
@@ -56,7 +57,7 @@ def run_demo(cfg: Config, scene: Scene, out_dir: Path) -> DemoResult:
         by_line = split_by_line(sim.traces, line_windows(sim.plan))
         lever = cfg.mount.antenna_lever_arm_m
         bscans = {line: assemble_bscan(tr, sim.trajectory.estimated_poses, lever) for line, tr in by_line.items()}
-        result = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed), step)
+        result = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.reconstruction_seed), step)
         steps.set_description(f"{scene.name}: writing the run directory")
         region = survey_region(cfg)
         matches, extras = compare_to_truth(result.reconstruction.pipes, scene, region)

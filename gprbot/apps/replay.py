@@ -200,7 +200,7 @@ def replay_run(run_dir: Path, out_dir: Path, cfg: Config | None = None) -> Surve
                               f"({run.log_status['note'] or 'no lines'})")
         steps.total = survey_steps(len(bscans)) + 2
         step("read the log")
-        result = reconstruct_survey(bscans, run.config, np.random.default_rng(run.config.sim.seed), step)
+        result = reconstruct_survey(bscans, run.config, np.random.default_rng(run.config.reconstruction_seed), step)
         steps.set_description(f"{Path(run_dir).name}: writing the results")
         positions = np.concatenate([b.positions for b in bscans.values()])
         lo, hi = positions.min(axis=0) - 0.2, positions.max(axis=0) + 0.2

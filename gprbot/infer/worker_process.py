@@ -125,7 +125,7 @@ def _finish_survey_job(cfg: Config, bscans: dict[int, BScan]) -> SurveyResult:
 
     from gprbot.infer.pipeline import reconstruct_survey
 
-    return reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
+    return reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.reconstruction_seed))
 
 
 def _write_outputs_job(cfg: Config, out_dir: str, result: SurveyResult, meta: dict[str, Any],

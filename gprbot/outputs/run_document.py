@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.errors import DataFormatError
+from gprbot.motion.planner import survey_region
 from gprbot.outputs.ply import read_ply
 from gprbot.shell import runfiles
 
@@ -55,7 +56,8 @@ def surveyed_area(summary: Any) -> list[float] | None:
     try:
         survey = summary["config"]["survey"]
         x0, y0 = (float(v) for v in survey["start_xy_m"])
-        return [x0, x0 + float(survey["length_m"]), y0, y0 + (int(survey["lines"]) - 1) * float(survey["spacing_m"])]
+        lines, spacing = int(survey["lines"]), float(survey["spacing_m"])
+        return list(survey_region((x0, y0), float(survey["length_m"]), lines, spacing))
     except (KeyError, TypeError, ValueError):
         return None
 

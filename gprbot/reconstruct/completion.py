@@ -18,11 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
-from gprbot.geometry import closest_points_of_segments, drop_collinear_vertices, drop_repeated_vertices
+from gprbot.geometry import closest_points_of_segments, drop_collinear_vertices, drop_repeated_vertices, sample_rods
 from gprbot.reconstruct.pipe_fit import SEGMENT_TOLERANCE_M, PipeFit, extend_axis, extension_length, fit_pipe
 from gprbot.reconstruct.pipe_track import track_pipes
 from gprbot.reconstruct.register import SliceCloud
-from gprbot.reconstruct.rods import sample_rods
 from gprbot.reconstruct.slice_blobs import SurveyFrame, split_slice, survey_frame
 
 JOIN_MARGIN_M = 0.01  # a pipe end runs into another pipe when its axis passes within R + this of it, ...

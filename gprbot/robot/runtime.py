@@ -296,7 +296,7 @@ class RobotRuntime:
 
     async def start_shell(self) -> None:
         """Load the token and bind the TCP shell (ConfigError if either is impossible)."""
-        from gprbot.robot.handler import RobotHandler
+        from gprbot.robot.robot_commands import RobotHandler
 
         shell = self.cfg.shell
         server = ShellServer(RobotHandler(self), host=self.shell_host, port=self.shell_port,
@@ -314,7 +314,7 @@ class RobotRuntime:
         await asyncio.Event().wait()
 
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
-        from gprbot.robot.handler import RobotHandler
+        from gprbot.robot.robot_commands import RobotHandler
 
         beat()
         assert self.cfg.shell.serial_console is not None

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.geometry import densify
 from gprbot.reconstruct.completion import PipeModel
 from gprbot.sim.scene import Pipe, Scene
 
@@ -37,12 +38,7 @@ class PipeMatch:
 
 def sample_polyline(points: NDArray[np.float64], step: float = SAMPLE_STEP_M) -> NDArray[np.float64]:
     """Points every `step` metres along a 3D polyline (end points included)."""
-    out = [points[:1]]
-    for a, b in itertools.pairwise(points):
-        n = max(int(np.ceil(np.linalg.norm(b - a) / step)), 1)
-        f = np.linspace(0.0, 1.0, n + 1)[1:, None]
-        out.append(a + f * (b - a))
-    return np.concatenate(out)
+    return densify(points, step)
 
 
 def nearest_on_polyline(

@@ -78,7 +78,7 @@ class WebConsole:
 
     def __init__(self, runtime: RobotRuntime, *, token_file: str | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        from gprbot.robot.handler import RobotHandler
+        from gprbot.robot.robot_commands import RobotHandler
 
         cfg = runtime.cfg
         self.rt, self.web_cfg, self.clock = runtime, cfg.web, clock

@@ -19,8 +19,8 @@ import numpy as np
 
 from gprbot.config import SIMULATED, RealsenseConfig
 from gprbot.drivers.realsense.clock import FramePairer
+from gprbot.drivers.realsense.depth_to_color import DepthToColor, same_geometry
 from gprbot.drivers.realsense.readings import Intrinsics, MotionReading, Reading, RgbdReading, Sink, SourceEvent
-from gprbot.drivers.realsense.registration import DepthToColor, same_geometry
 from gprbot.drivers.realsense.sdk import require_pyrealsense
 from gprbot.errors import DriverError
 

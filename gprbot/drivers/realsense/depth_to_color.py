@@ -1,4 +1,5 @@
-"""Registration of depth to the colour camera, when the two do not already share one geometry."""
+"""Depth mapped into the colour camera when the two do not already share one geometry (librealsense calls it
+registration; `reconstruct/register.py` is the other kind: slices into 3D)."""
 
 from __future__ import annotations
 
