@@ -75,7 +75,7 @@ async def drain(
     seconds = time.perf_counter() - start
     if feeding:
         await feeding
-    await driver.stop()
+    await driver.close()
     return imu, frames, seconds
 
 

@@ -135,7 +135,7 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
         done.set()
         await sampler
         vo_health, stats = rt.vo.health(), rt.fusion.fuser.stats
-        rs_health = rt.realsense.health() if rt.realsense is not None else {}
+        rs_health = rt.realsense.streams() if rt.realsense is not None else {}
         daemon_poses = list(rt.fusion.fuser.history)
         start = rt.fusion.fuser._initial
         while run.state == "finishing":

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from gprbot.config import GprDeviceConfig
-from gprbot.drivers.gpr.driver import DeviceClock, GprDriver
+from gprbot.drivers.gpr.driver import GprDriver, NicClock
 from gprbot.drivers.gpr.emulator import GprSdkEmulator
 from gprbot.drivers.gpr.protocol import DeviceRejectedError, TraceFrame, TraceStreamParser
 from gprbot.errors import DriverError
@@ -59,7 +59,7 @@ async def running(emu: GprSdkEmulator, **kwargs: Any) -> AsyncIterator[GprDriver
     try:
         yield driver
     finally:
-        await driver.stop()
+        await driver.close()
 
 
 Action = Callable[[], Awaitable[None] | None]
@@ -125,7 +125,7 @@ async def test_stop_ends_the_trace_iterator(emulator: GprSdkEmulator) -> None:
     driver = GprDriver(emulator.driver_config(BASE))
     await driver.start()
     await take(driver, 3)
-    await driver.stop()
+    await driver.close()
     async with asyncio.timeout(2.0):
         remaining = [t async for t in driver.traces()]
     assert all(t.number > 3 for t in remaining)
@@ -196,7 +196,7 @@ async def test_rounded_setup_is_applied_and_reported(emulator: GprSdkEmulator) -
     try:
         [trace] = await take(driver, 1)
     finally:
-        await driver.stop()
+        await driver.close()
     assert trace.dt_ns == pytest.approx(0.1)  # the NIC rounds to its 50 ps steps; the driver uses that
     assert "adjusted the setup: time_sampling_interval_ps 120.0 -> 100.0" in (driver.health().last_error or "")
 
@@ -293,7 +293,7 @@ async def test_device_clock_jump_is_reported_and_host_times_stay_sane() -> None:
 
 def test_device_clock_keeps_the_least_latency_offset_and_detects_jumps() -> None:
     rng = np.random.default_rng(3)
-    clock = DeviceClock(max_latency_s=2.0)
+    clock = NicClock(max_latency_s=2.0)
     device = 1.7e9 + np.arange(300) * 0.01
     latency = rng.uniform(0.0, 0.005, 300)
     latency[0] = 0.2  # the first trace arrived late: the estimate must improve from it

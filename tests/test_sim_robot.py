@@ -79,7 +79,7 @@ async def test_gpr_traces_are_the_forward_model_at_the_true_antenna_position() -
                 if len(traces) == 10:
                     break
     finally:
-        await driver.stop()
+        await driver.close()
         await robot.close()
     assert traces[0].dt_ns == cfg.gpr.dt_ns and traces[0].t0_ns == cfg.gpr.pre_trigger_ns
     assert traces[0].samples.size == cfg.gpr.samples

@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from gprbot.drivers.contract import link_state
+from gprbot.drivers.realsense.driver import RealsenseDriver
 from gprbot.errors import DriverError, GprbotError
 from gprbot.fusion.fuser import FusionStats
 from gprbot.messages import VoHealth, expected_rates
@@ -144,11 +146,12 @@ class RobotHandler:
                 lines.append(f"task {task.name} {task.state} restarts {task.restarts}"
                              + (f" last_error {task.last_error}" if task.last_error else ""))
         expected = expected_rates(rt.cfg)
-        healths = [d.health() for d in (rt.motors, rt.gpr) if d is not None]
-        healths += list(rt.realsense.health().values()) if rt.realsense is not None else []
+        healths = []
+        for driver in rt.drivers():  # a camera's streams each on a line of their own
+            healths += list(driver.streams().values()) if isinstance(driver, RealsenseDriver) else [driver.health()]
         for h in healths:
             slow = h.slow_against(expected.get(h.name))
-            lines.append(f"driver {h.name} {'connected' if h.connected else 'DISCONNECTED'} rate_hz "
+            lines.append(f"driver {h.name} {link_state(h).value} rate_hz "
                          f"{h.rate_hz:.1f} drops {h.drops} errors {h.errors}"
                          + (f" SLOW expected_hz {expected[h.name]:.1f}" if slow else ""))
         lines.append(vo_status_line(rt.vo.health(), rt.fusion.fuser.stats))

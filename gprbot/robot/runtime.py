@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from gprbot.config import CONTROL_PERIOD_S, SIMULATED, Config
+from gprbot.drivers.contract import Driver
 from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.realsense.driver import RealsenseDriver
@@ -136,8 +137,8 @@ class RobotRuntime:
         """Stop the drivers, the worker and the emulators (best effort, each independently)."""
         steps: list[tuple[str, Callable[[], Awaitable[None]] | None]] = [
             ("motors", self.motors.close if self.motors is not None else None),
-            ("gpr", self.gpr.stop if self.gpr is not None else None),
-            ("realsense", self.realsense.stop if self.realsense is not None else None),
+            ("gpr", self.gpr.close if self.gpr is not None else None),
+            ("realsense", self.realsense.close if self.realsense is not None else None),
             ("vo", self._stop_vo),
             ("worker", self.worker.close if self.worker is not None else None),
             ("sim", self.sim.close if self.sim is not None else None),
@@ -374,6 +375,11 @@ class RobotRuntime:
         run = self.survey.current
         survey = f"survey {run.state} line {run.line + 1}/{run.lines}" if run is not None else "no survey"
         return f"{'ESTOP' if self.estopped else 'ok'}; {survey}"
+
+    def drivers(self) -> list[Driver]:
+        """The started device drivers, all under the one driver contract."""
+        started: list[Driver | None] = [self.motors, self.gpr, self.realsense]
+        return [d for d in started if d is not None]
 
     def _links_fault(self) -> str | None:
         """Why the survey cannot go on now (a motor or GPR link down), or None."""

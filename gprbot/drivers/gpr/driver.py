@@ -18,8 +18,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from gprbot.config import SIMULATED, GprDeviceConfig
+from gprbot.drivers.contract import Backoff
 from gprbot.drivers.gpr import sdk_api as api
-from gprbot.drivers.gpr.sdk_client import READ_CHUNK, DeviceClock, SdkHttpClient
+from gprbot.drivers.gpr.sdk_client import READ_CHUNK, NicClock, SdkHttpClient
 from gprbot.drivers.gpr.trace_stream import (
     DuplicateTrace,
     Resync,
@@ -34,8 +35,17 @@ from gprbot.errors import DriverError, GprbotError, ProtocolError
 from gprbot.messages import Trace
 
 __all__ = [
-    "BACKOFF_INITIAL_S", "BACKOFF_MAX_S", "MIN_STALL_TIMEOUT_S", "QUEUE_SIZE", "READ_CHUNK", "STALL_PERIODS",
-    "DeviceClock", "GprDriver", "GprLinkStats", "SdkHttpClient", "Sleep",
+    "BACKOFF_INITIAL_S",
+    "BACKOFF_MAX_S",
+    "MIN_STALL_TIMEOUT_S",
+    "QUEUE_SIZE",
+    "READ_CHUNK",
+    "STALL_PERIODS",
+    "GprDriver",
+    "GprLinkStats",
+    "NicClock",
+    "SdkHttpClient",
+    "Sleep",
 ]
 
 Sleep = Callable[[float], Awaitable[None]]
@@ -63,7 +73,7 @@ class GprLinkStats:
 
 
 class GprDriver:
-    """The SPIDAR NIC-500 driver: `start()`, iterate `traces()`, read `health()`, `stop()`.
+    """The SPIDAR NIC-500 driver (the drivers' contract): `start()`, iterate `traces()`, `health()`, `close()`.
 
     Trace numbers are the NIC's until it restarts its numbering (a setup after a power cycle); from then
     on they continue from the last delivered number, so they always increase. `t0_ns` is where the first
@@ -92,7 +102,7 @@ class GprDriver:
         self._http = SdkHttpClient(cfg.host, cfg.http_port, cfg.connect_timeout_s)
         self._health = HealthTracker("gpr")
         self._counter = TraceCounter()
-        self._device_clock = DeviceClock()
+        self._device_clock = NicClock()
         self._queue: asyncio.Queue[Trace | None] = asyncio.Queue(QUEUE_SIZE)
         self._parser: TraceStreamParser | None = None
         self._data: tuple[asyncio.StreamReader, asyncio.StreamWriter] | None = None
@@ -119,7 +129,7 @@ class GprDriver:
                 await self._close_data()
         self._task = asyncio.create_task(self._run(), name="gpr-driver")
 
-    async def stop(self) -> None:
+    async def close(self) -> None:
         """Stop the link and the NIC's acquisition; `traces()` ends after the queued traces."""
         self._stopping = True
         if self._task is not None:
@@ -137,7 +147,7 @@ class GprDriver:
             self._queue.put_nowait(None)
 
     async def traces(self) -> AsyncGenerator[Trace, None]:
-        """The received traces, in order, until `stop()`."""
+        """The received traces, in order, until `close()`."""
         while not (self._stopped and self._queue.empty()):
             trace = await self._queue.get()
             if trace is None:
@@ -254,8 +264,7 @@ class GprDriver:
         self._health.connected = False
 
     async def _run(self) -> None:
-        initial, longest = self._backoff
-        delay = initial
+        backoff = Backoff(*self._backoff)
         while not self._stopping:  # besides the cancel: a cancel racing a timeout must not keep it alive
             if self._data is None:
                 try:
@@ -264,17 +273,15 @@ class GprDriver:
                 except GprbotError as exc:  # DriverError, or ProtocolError from a malformed reply
                     await self._close_data()
                     self._health.error(f"reconnect failed: {exc}")
-                    await self._sleep(delay)
-                    delay = min(2 * delay, longest)
+                    await self._sleep(backoff.next_s())
                     continue
             delivered_before = self._counts["traces"]
             reason = await self._pump()
             self._health.error(reason)
             await self._close_data()
             if self._counts["traces"] > delivered_before:
-                delay = initial
-            await self._sleep(delay)
-            delay = min(2 * delay, longest)
+                backoff.reset()
+            await self._sleep(backoff.next_s())
 
     async def _pump(self) -> str:
         """Read and deliver until the data socket fails; the reason it did."""

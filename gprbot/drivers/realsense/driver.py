@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.config import RealsenseConfig
+from gprbot.drivers.contract import Backoff
 from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.drivers.realsense.clock import DeviceClock
 from gprbot.drivers.realsense.handoff import Handoff
@@ -123,7 +124,7 @@ class RealsenseDriver:
         if self._playback:
             self._tasks.append(asyncio.create_task(self._finish_playback(), name="realsense-playback"))
 
-    async def stop(self) -> None:
+    async def close(self) -> None:
         """Stop streaming and end the message iteration (messages still queued are discarded)."""
         if self._handoff is not None:
             self._handoff.close()  # first: sensor.stop() waits for callbacks blocked on a full handoff
@@ -146,7 +147,7 @@ class RealsenseDriver:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
-        await self.stop()
+        await self.close()
 
     def __aiter__(self) -> AsyncIterator[Message]:
         return self.messages()
@@ -162,9 +163,20 @@ class RealsenseDriver:
             assert isinstance(item, ImuSample | RawRgbdFrame)
             yield item
 
-    def health(self) -> dict[str, DriverHealth]:
+    def streams(self) -> dict[str, DriverHealth]:
         """Per stream (gyro, accel, depth, color): connected, rate, drops from frame-number gaps, errors."""
         return {name: tracker.snapshot() for name, tracker in self._trackers.items()}
+
+    def health(self) -> DriverHealth:
+        """The camera as one link: connected while every stream is, its IMU rate, drops and errors summed."""
+        streams = list(self.streams().values())
+        last = [h.last_message_t for h in streams if h.last_message_t is not None]
+        errors = [h for h in streams if h.last_error]
+        return DriverHealth(
+            name="realsense", connected=all(h.connected for h in streams),
+            rate_hz=sum(h.rate_hz for h in streams if h.name in ("realsense.gyro", "realsense.accel")),
+            drops=sum(h.drops for h in streams), errors=sum(h.errors for h in streams),
+            last_error=errors[-1].last_error if errors else None, last_message_t=max(last) if last else None)
 
     async def _open_source(self) -> None:
         assert self._handoff is not None
@@ -223,14 +235,13 @@ class RealsenseDriver:
             tracker.connected = False
         if self._source is not None:
             await asyncio.to_thread(self._source.close)
-        delay = self.backoff_initial_s
+        backoff = Backoff(self.backoff_initial_s, self.backoff_max_s)
         while True:
-            await asyncio.sleep(delay)
+            await asyncio.sleep(backoff.next_s())
             try:
                 await self._open_source()
             except DriverError as exc:
                 self._error_all(str(exc))
-                delay = min(2.0 * delay, self.backoff_max_s)
                 continue
             self.reconnects += 1
             return
