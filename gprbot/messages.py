@@ -197,6 +197,28 @@ class FusionSnapshot:
     heap: list[list[Any]] = field(default_factory=list)  # [key, priority, seq, encoded message]
     queued: list[bytes] = field(default_factory=list)  # submitted to the fusion task, not yet pushed
 
+@dataclass(frozen=True)
+class GprStreamSetup:
+    """A GPR data-socket connection begins: the setup its bytes follow (`new_epoch`: the NIC numbers from 1)."""
+
+    t: float
+    session: int
+    points_per_trace: int
+    stacks: int
+    dt_ns: float
+    t0_ns: float
+    new_epoch: bool
+
+
+@dataclass(frozen=True)
+class GprRawChunk:
+    """Bytes as read from the GPR data socket of connection `session`, at host receive time t."""
+
+    t: float
+    session: int
+    data: bytes
+
+
 Rate = float | str  # Hz, or the config key path that sets it (e.g. "survey.trace_rate_hz")
 
 
@@ -232,6 +254,10 @@ def _rate(rate: Rate, cfg: object) -> float:
 
 REGISTRY: dict[str, MessageSpec] = {spec.cls.__name__: spec for spec in (
     MessageSpec(Trace, True, (("gpr", "survey.trace_rate_hz"),)),
+    # The driver's raw stream (raw_sink): not in the daemon's run log yet — a log opens mid-stream, and
+    # re-parsing it to the bit needs the parser's, counter's and clock's state at that moment as well.
+    MessageSpec(GprRawChunk, False),
+    MessageSpec(GprStreamSetup, False),
     MessageSpec(ImuSample, True, (("realsense.gyro", "realsense.gyro_hz"), ("realsense.accel", "realsense.accel_hz"))),
     MessageSpec(RawRgbdFrame, "realsense.record_frames", (("realsense.depth", "realsense.fps"),
                                                           ("realsense.color", "realsense.fps"))),

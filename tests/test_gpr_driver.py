@@ -18,8 +18,9 @@ from gprbot.config import GprDeviceConfig
 from gprbot.drivers.gpr.driver import GprDriver, NicClock
 from gprbot.drivers.gpr.emulator import GprSdkEmulator
 from gprbot.drivers.gpr.protocol import DeviceRejectedError, TraceFrame, TraceStreamParser
+from gprbot.drivers.gpr.raw_replay import traces_from_raw
 from gprbot.errors import DriverError
-from gprbot.messages import Trace
+from gprbot.messages import GprRawChunk, GprStreamSetup, Trace
 
 PPT = 128
 RATE_HZ = 250.0
@@ -101,8 +102,8 @@ async def test_start_receives_traces_in_order_with_exact_samples(emulator: GprSd
     def host_clock() -> float:  # a host clock unlike the NIC's
         return time.monotonic() + 1000.0
 
-    raw: list[bytes] = []
-    async with running(emulator, clock=host_clock, raw_sink=lambda t, chunk: raw.append(chunk)) as driver:
+    raw: list[GprStreamSetup | GprRawChunk] = []
+    async with running(emulator, clock=host_clock, raw_sink=raw.append) as driver:
         got = await take(driver, 25)
         health = driver.health()
     assert [t.number for t in got] == list(range(1, 26))
@@ -117,8 +118,12 @@ async def test_start_receives_traces_in_order_with_exact_samples(emulator: GprSd
                                                   ("PUT", "/api/nic/acquisition"))]
     assert order[:4] == [("GET", "/api"), ("PUT", "/api/nic/power"), setup_put, ("PUT", "/api/nic/acquisition")]
     assert emulator.acquisition_state == 0  # stop() stopped the acquisition
-    replayed = [e for e in TraceStreamParser(PPT).feed(b"".join(raw)) if isinstance(e, TraceFrame)]
+    chunks = b"".join(r.data for r in raw if isinstance(r, GprRawChunk))
+    replayed = [e for e in TraceStreamParser(PPT).feed(chunks) if isinstance(e, TraceFrame)]
     assert [(e.number, e.samples.tobytes()) for e in replayed[:25]] == [(t.number, t.samples.tobytes()) for t in got]
+    again = traces_from_raw(raw)  # the recorded stream through the driver's parser and clock: the same traces
+    assert [(t.t, t.number, t.dt_ns, t.t0_ns, t.samples.tobytes()) for t in again[:25]] == [
+        (t.t, t.number, t.dt_ns, t.t0_ns, t.samples.tobytes()) for t in got]
 
 
 async def test_stop_ends_the_trace_iterator(emulator: GprSdkEmulator) -> None:

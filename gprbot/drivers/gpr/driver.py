@@ -20,6 +20,7 @@ from typing import Any
 from gprbot.config import SIMULATED, GprDeviceConfig
 from gprbot.drivers.contract import Backoff
 from gprbot.drivers.gpr import sdk_api as api
+from gprbot.drivers.gpr.raw_replay import trace_of
 from gprbot.drivers.gpr.sdk_client import READ_CHUNK, NicClock, SdkHttpClient
 from gprbot.drivers.gpr.trace_stream import (
     DuplicateTrace,
@@ -32,7 +33,7 @@ from gprbot.drivers.gpr.trace_stream import (
 )
 from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.errors import DriverError, GprbotError, ProtocolError
-from gprbot.messages import Trace
+from gprbot.messages import GprRawChunk, GprStreamSetup, Trace
 
 __all__ = [
     "BACKOFF_INITIAL_S",
@@ -78,7 +79,8 @@ class GprDriver:
     Trace numbers are the NIC's until it restarts its numbering (a setup after a power cycle); from then
     on they continue from the last delivered number, so they always increase. `t0_ns` is where the first
     break lies in each trace (see `sdk_api.setup_from_config`). `clock` gives host receive times,
-    `sleep` paces the reconnect backoff, `raw_sink` sees every data-socket read with its receive time.
+    `sleep` paces the reconnect backoff, `raw_sink` gets a GprStreamSetup as each connection's parser
+    starts and a GprRawChunk per data-socket read (the run log's record of the raw stream).
     """
 
     def __init__(
@@ -90,10 +92,11 @@ class GprDriver:
         stall_timeout_s: float | None = None,
         backoff_initial_s: float = BACKOFF_INITIAL_S,
         backoff_max_s: float = BACKOFF_MAX_S,
-        raw_sink: Callable[[float, bytes], None] | None = None,
+        raw_sink: Callable[[GprStreamSetup | GprRawChunk], None] | None = None,
     ):
         self.cfg = cfg
-        self._raw_sink = raw_sink  # (receive time, bytes) of every data-socket read, for the run log
+        self._raw_sink = raw_sink  # every data-socket read and each connection's setup, for the run log
+        self._session = 0
         self._clock = clock
         self._sleep = sleep
         self._stall_timeout_s = (stall_timeout_s or cfg.stall_timeout_s
@@ -213,7 +216,7 @@ class GprDriver:
         self.setup = applied
         self._t0_ns = api.first_break_ns(applied, reference_ps)
         self._counter.new_epoch()
-        self._new_parser()
+        self._new_parser(new_epoch=True)
         await self._http.put(api.RESOURCE_ACQUISITION, {"state": api.ACQUISITION_START})
         self._health.connected = True
 
@@ -227,10 +230,14 @@ class GprDriver:
         self._new_parser()
         self._health.connected = True
 
-    def _new_parser(self) -> None:
+    def _new_parser(self, new_epoch: bool = False) -> None:
         assert self.setup is not None
         self._retire_parser()
         self._parser = TraceStreamParser(self.setup.points_per_trace, self.setup.point_stacks, self._counter)
+        self._session += 1
+        if self._raw_sink is not None:
+            self._raw_sink(GprStreamSetup(self._clock(), self._session, self.setup.points_per_trace,
+                                          self.setup.point_stacks, self.setup.dt_ns, self._t0_ns, new_epoch))
 
     def _retire_parser(self) -> None:
         if self._parser is not None:
@@ -300,7 +307,7 @@ class GprDriver:
                 return "the NIC closed the data socket; reconnecting"
             received_s = self._clock()
             if self._raw_sink is not None:
-                self._raw_sink(received_s, chunk)
+                self._raw_sink(GprRawChunk(received_s, self._session, chunk))
             await self._handle(self._parser.feed(chunk), received_s)
 
     async def _handle(self, events: list[TraceEvent], received_s: float, wait: bool = True) -> None:
@@ -308,11 +315,9 @@ class GprDriver:
         for event in events:
             if isinstance(event, TraceFrame):
                 jumps = self._device_clock.jumps
-                t = self._device_clock.to_host(event.device_time_s, received_s)
+                trace = trace_of(event, self._device_clock, received_s, self.setup.dt_ns, self._t0_ns)
                 if self._device_clock.jumps != jumps:
                     self._health.error(f"the NIC's clock jumped by {self._device_clock.last_jump_s:+.3f} s")
-                trace = Trace(t=t, number=event.sequence, samples=event.samples, dt_ns=self.setup.dt_ns,
-                              t0_ns=self._t0_ns, stacks=event.stacks)
                 if wait:
                     await self._queue.put(trace)
                 else:
