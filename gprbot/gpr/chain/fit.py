@@ -105,7 +105,7 @@ def fit_cylinders(
         zc = q[:, 1:2] + q[:, 2:3]
         model, g_x0, g_zc, g_r, g_v = cylinder_time_gradient(xs, q[:, 0:1], zc, q[:, 2:3], vel, h, off)
         cols = [g_x0, g_zc, g_r + g_zc] + ([g_v] if free_velocity else [])
-        jac = np.stack([np.where(ms, g / sigma_t, 0.0) for g in cols], axis=-1)
+        jac = np.where(ms[..., None], np.stack(cols, axis=-1) / sigma_t, 0.0)
         return np.where(ms, (model - ts) / sigma_t, 0.0), jac
 
     def cost(r: FloatArray) -> FloatArray:

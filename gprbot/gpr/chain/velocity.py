@@ -38,7 +38,6 @@ MULTIPLE_TIME_TOLERANCE = 0.15  # of twice the primary's apex time
 MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
 SHALLOW_M = 0.06  # FDTD dev half: tops above ~5 cm voted 20-50 % off
 FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight
-GATHER_CELLS = 400_000  # samples gathered at once by `focus`
 
 
 @dataclass(frozen=True)
@@ -87,11 +86,14 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     at_first = (lags + reach)[None, :, None] * ns + i0  # flat index for the window's first column
     cols = np.arange(max(0, column - half), min(nx, column + half + 1))
     out = np.zeros(len(velocities))
-    block = max(1, GATHER_CELLS // i0.size)  # image columns per gather: few Python steps, bounded memory
-    for first in range(0, len(cols), block):
-        idx = at_first + (cols[first : first + block] * ns)[:, None, None, None]  # (columns, velocities, lags, depths)
-        image = (flat[idx] * w_lo + flat[idx + 1] * w_hi).sum(axis=2)
-        out = np.maximum(out, np.abs(image).max(axis=(0, 2)))
+    # Each velocity gathers only the lags its own aperture reaches (a slow velocity's image is shallow
+    # and narrow; outside its reach the weights are zero anyway).
+    own = np.ceil(z.max(axis=(1, 2)) * tan_ap / prep.dx_m).astype(np.intp)
+    for i, k in enumerate(np.minimum(own, reach)):
+        lags_i = slice(reach - k, reach + k + 1)
+        idx = at_first[i, lags_i][None] + (cols * ns)[:, None, None]  # (columns, lags, depths)
+        image = (flat[idx] * w_lo[i, lags_i] + flat[idx + 1] * w_hi[i, lags_i]).sum(axis=1)
+        out[i] = np.abs(image).max()
     return out
 
 
