@@ -210,18 +210,17 @@ def antenna_positions(poses: Sequence[Pose], lever_arm: tuple[float, float, floa
 
 # ----- solid rods (pipes as polyline axes with a radius) -------------------------------------------
 # Each rod is the union of a cylinder per axis segment (flat ends) and a ball at every interior vertex
-# (filling the outer wedge of a bend). The union of all rods is sampled uniformly by drawing from the
-# primitives in proportion to their volume and keeping a draw with probability 1 / (number of primitives
-# that contain it), which cancels the double counting where primitives overlap (bends, tees, crossings).
-# The ground truth and the completion both sample with it, so they sample alike.
-_CONTAIN_EPS = 1e-9
-_REGION_ROUNDS = 30  # with a region: rounds of drawing before giving up on a region the rods barely touch
-_MAX_DRAW = 1_000_000  # draws per round at the most
+# (filling the outer wedge of a bend). The union is sampled uniformly by drawing from the primitives in
+# proportion to their volume and keeping a draw only for the first primitive that contains it, which
+# cancels the double counting where primitives overlap (bends, tees, crossings); a point in an overlap
+# belongs to the rod listed first. The ground truth and the completion both sample with it.
+_REGION_ROUNDS = 30  # rounds of drawing before giving up (a region the rods barely touch)
+_MAX_BATCH = 1_000_000  # candidate points per round at the most
 
 
 @dataclass(frozen=True)
 class Primitive:
-    """A cylinder (start, end, radius) or, when end is None, a ball (centre = start, radius)."""
+    """A cylinder (start, end, radius) of rod `rod` or, when end is None, a ball (centre = start, radius)."""
 
     rod: int
     start: NDArray[np.float64]
@@ -236,88 +235,83 @@ class Primitive:
         return math.pi * self.radius**2 * float(np.linalg.norm(self.end - self.start))
 
     def contains(self, points: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """Which points (..., 3) lie inside (a small tolerance for rounding)."""
+        """Which of the points (..., 3) lie inside."""
         rel = points - self.start
-        r2 = self.radius**2 + _CONTAIN_EPS
         if self.end is None:
-            return np.asarray(np.sum(rel**2, axis=-1) <= r2)
-        axis = self.end - self.start
-        length2 = float(axis @ axis)
-        t = rel @ axis / length2
-        radial2 = np.sum(rel**2, axis=-1) - t * t * length2
-        return np.asarray((t >= -_CONTAIN_EPS) & (t <= 1.0 + _CONTAIN_EPS) & (radial2 <= r2))
+            return np.asarray(np.sum(rel**2, axis=-1) <= self.radius**2)
+        ab = self.end - self.start
+        s = (rel @ ab) / float(ab @ ab)
+        radial = rel - s[..., None] * ab
+        return np.asarray((s >= 0.0) & (s <= 1.0) & (np.sum(radial**2, axis=-1) <= self.radius**2))
 
     def sample(self, count: int, rng: np.random.Generator) -> NDArray[np.float64]:
         """count points uniform inside the primitive."""
         if self.end is None:
-            direction = rng.normal(size=(count, 3))
+            direction = rng.standard_normal((count, 3))
             direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-            return self.start + direction * (self.radius * rng.random(count) ** (1.0 / 3.0))[:, None]
-        axis = self.end - self.start
-        unit = axis / np.linalg.norm(axis)
-        helper = np.array([1.0, 0.0, 0.0]) if abs(unit[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        e1 = np.cross(unit, helper)
+            return np.asarray(self.start + direction * (self.radius * rng.random(count) ** (1.0 / 3.0))[:, None])
+        ab = self.end - self.start
+        u = ab / np.linalg.norm(ab)
+        e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
         e1 /= np.linalg.norm(e1)
-        e2 = np.cross(unit, e1)
-        radial = self.radius * np.sqrt(rng.random(count))
-        angle = rng.uniform(0.0, 2.0 * math.pi, count)
+        e2 = np.cross(u, e1)
+        r = self.radius * np.sqrt(rng.random(count))
+        phi = 2.0 * math.pi * rng.random(count)
         along = rng.random(count)
         return np.asarray(
-            self.start
-            + np.outer(along, axis)
-            + np.outer(radial * np.cos(angle), e1)
-            + np.outer(radial * np.sin(angle), e2),
-            dtype=np.float64,
+            self.start + along[:, None] * ab + (r * np.cos(phi))[:, None] * e1 + (r * np.sin(phi))[:, None] * e2
         )
 
 
 def rod_primitives(axes: Sequence[NDArray[np.float64]], radii: Sequence[float]) -> list[Primitive]:
-    """Cylinders for every segment and balls at interior vertices of each rod."""
+    """Cylinders for every segment, then balls at the interior vertices, rod by rod."""
     primitives = []
     for rod, (axis, radius) in enumerate(zip(axes, radii, strict=True)):
-        for a, b in itertools.pairwise(axis):
+        points = np.asarray(axis, dtype=np.float64)
+        for a, b in itertools.pairwise(points):
             if np.linalg.norm(b - a) > 1e-9:
                 primitives.append(Primitive(rod, a, b, radius))
-        primitives += [Primitive(rod, vertex, None, radius) for vertex in axis[1:-1]]
+        primitives += [Primitive(rod, vertex, None, radius) for vertex in points[1:-1]]
     return primitives
 
 
 def sample_rods(
     axes: Sequence[NDArray[np.float64]], radii: Sequence[float], n: int, rng: np.random.Generator,
     region_xy: tuple[float, float, float, float] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """n points uniform inside the union of the rods, and the rod index of each point.
 
     With `region_xy` = (xmin, xmax, ymin, ymax) only the rods' part above that area counts; if too little
     of them lies there, fewer than n points come back (the caller says what to change)."""
     primitives = rod_primitives(axes, radii)
     if n <= 0 or not primitives:
-        return np.zeros((0, 3)), np.zeros(0, dtype=np.intp)
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     volumes = np.array([p.volume for p in primitives])
-    weights = volumes / volumes.sum()
-    points: list[NDArray[np.float64]] = []
-    labels: list[NDArray[np.intp]] = []
-    have, draw, rounds = 0, int(1.5 * n) + 16, 0
-    while have < n and rounds < (_REGION_ROUNDS if region_xy is not None else math.inf):
-        counts = rng.multinomial(draw, weights)
-        got = 0
-        for primitive, count in zip(primitives, counts, strict=True):
-            if count == 0:
+    chosen: list[NDArray[np.float64]] = []
+    owners: list[NDArray[np.int64]] = []
+    have, batch = 0, max(2 * n, 1024)
+    for _ in range(_REGION_ROUNDS):
+        picks = rng.choice(len(primitives), size=batch, p=volumes / volumes.sum())
+        counts = np.bincount(picks, minlength=len(primitives))
+        for k, primitive in enumerate(primitives):
+            if counts[k] == 0:
                 continue
-            draws = primitive.sample(int(count), rng)
-            cover = np.maximum(sum(p.contains(draws).astype(np.intp) for p in primitives), 1)
-            keep = rng.random(len(draws)) * cover < 1.0  # uniform over the union: overlaps are not counted twice
+            points = primitive.sample(int(counts[k]), rng)
+            # Uniform over the union: a point counts only for the first primitive that contains it.
+            keep = (~np.any([primitives[j].contains(points) for j in range(k)], axis=0) if k
+                    else np.ones(len(points), bool))
             if region_xy is not None:
                 xmin, xmax, ymin, ymax = region_xy
-                keep &= (draws[:, 0] >= xmin) & (draws[:, 0] <= xmax) & (draws[:, 1] >= ymin) & (draws[:, 1] <= ymax)
-            points.append(draws[keep])
-            labels.append(np.full(int(np.count_nonzero(keep)), primitive.rod, dtype=np.intp))
-            got += int(np.count_nonzero(keep))
-        have, rounds = have + got, rounds + 1
-        draw = int(1.5 * (n - have)) + 16
-        if region_xy is not None:  # a region keeps a fraction of the draws: ask for enough next round
-            draw = int(min(_MAX_DRAW, draw / max(got / float(counts.sum()), 1e-3)))
+                x, y = points[:, 0], points[:, 1]
+                keep &= (x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax)
+            chosen.append(points[keep])
+            owners.append(np.full(int(keep.sum()), primitive.rod, dtype=np.int64))
+            have += int(keep.sum())
+        if have >= n or (have == 0 and batch >= _MAX_BATCH):
+            break
+        batch = int(min(_MAX_BATCH, batch * (4.0 if have == 0 else max(1.5, 1.2 * n / have))))
     if have == 0:
-        return np.zeros((0, 3)), np.zeros(0, dtype=np.intp)
-    order = rng.permutation(have)[:n]
-    return np.concatenate(points)[order], np.concatenate(labels)[order]
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    all_points, all_owners = np.concatenate(chosen), np.concatenate(owners)
+    order = rng.permutation(len(all_points))[:n]
+    return all_points[order], all_owners[order]

@@ -47,7 +47,8 @@ def sample_pipe_interiors(
     """n points (n, 3) uniform inside the pipes' solid rods, and the index of the pipe of each point.
 
     With `region_xy` = (xmin, xmax, ymin, ymax) only the part of the pipes above that area counts.
-    The sampler is the completion's (gprbot.geometry.sample_rods), so truth and completion sample alike.
+    Where pipes overlap (a tee's junction) the point belongs to the pipe listed first. The sampler is the
+    completion's too (gprbot.geometry.sample_rods), so truth and completion sample alike.
     """
     if not scene.pipes:
         raise ConfigError(f"scene {scene.name!r} has no pipes to sample; add pipes to the scene file")
@@ -56,4 +57,4 @@ def sample_pipe_interiors(
         raise ConfigError(
             f"scene {scene.name!r}: no pipe lies inside region {region_xy}; widen region_xy or check the scene"
         )
-    return points, owners.astype(np.int64)
+    return points, owners
