@@ -15,9 +15,10 @@ import logging
 import math
 import time
 from collections.abc import Awaitable, Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
+from gprbot.backoff import Backoff
 from gprbot.errors import GprbotError
 from gprbot.sdnotify import SdNotifier, watchdog_interval_s
 
@@ -60,7 +61,7 @@ class _TaskRecord:
     last_error: str | None = None
     started_t: float = 0.0
     last_beat_t: float = 0.0
-    backoff_s: float = BACKOFF_S[0]
+    backoff: Backoff = field(default_factory=lambda: Backoff(*BACKOFF_S))
     restart_at: float = math.inf
 
 
@@ -74,11 +75,10 @@ class Supervisor:
         names = [s.name for s in specs]
         if len(set(names)) != len(names):
             raise GprbotError(f"task names must be unique, got {names}")
-        self._records = {s.name: _TaskRecord(s, backoff_s=backoff_s[0]) for s in specs}
+        self._records = {s.name: _TaskRecord(s, backoff=Backoff(*backoff_s)) for s in specs}
         self.notifier = notifier or SdNotifier()
         self._clock = clock
         self.tick_s = tick_s
-        self._backoff = backoff_s
         self._max_lag_s = max_loop_lag_s
         self._status_text = status_text
         self._last_status = ""
@@ -140,9 +140,8 @@ class Supervisor:
     def _schedule_restart(self, record: _TaskRecord) -> None:
         now = self._clock()
         if now - record.started_t >= STABLE_AFTER_S:
-            record.backoff_s = self._backoff[0]
-        record.state, record.restart_at = "backoff", now + record.backoff_s
-        record.backoff_s = min(2 * record.backoff_s, self._backoff[1])
+            record.backoff.reset()
+        record.state, record.restart_at = "backoff", now + record.backoff.next_s()
 
     # ----- the supervisor loop --------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:

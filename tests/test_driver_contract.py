@@ -7,7 +7,8 @@ import typing
 
 import pytest
 
-from gprbot.drivers.contract import Backoff, LinkState, link_state
+from gprbot.backoff import Backoff
+from gprbot.drivers.contract import LinkState, link_state
 from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.health import DriverHealth
 from gprbot.drivers.motors.driver import MotorDriver

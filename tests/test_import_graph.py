@@ -24,8 +24,8 @@ PACKAGE = REPO / "gprbot"
 # group of a lower layer, never one of its own layer or above. Change this table on purpose, in review.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("base", ("gprbot", "gprbot.errors")),
-    ("foundation", ("gprbot.atomic_files", "gprbot.progress", "gprbot.shutdown_budget", "gprbot.sdnotify",
-                    "gprbot.config_ranges")),
+    ("foundation", ("gprbot.backoff", "gprbot.atomic_files", "gprbot.progress", "gprbot.shutdown_budget",
+                    "gprbot.sdnotify", "gprbot.config_ranges")),
     ("types", ("gprbot.config", "gprbot.messages", "gprbot.plotting")),
     # Physics and geometry that the simulated world and the robot's stages both stand on: pure numpy.
     ("models", ("gprbot.geometry", "gprbot.gpr.traveltime", "gprbot.gpr.wavelet", "gprbot.motion.kinematics",

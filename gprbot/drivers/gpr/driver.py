@@ -17,8 +17,8 @@ from collections.abc import AsyncGenerator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
+from gprbot.backoff import Backoff
 from gprbot.config import SIMULATED, GprDeviceConfig
-from gprbot.drivers.contract import Backoff
 from gprbot.drivers.gpr import sdk_api as api
 from gprbot.drivers.gpr.raw_replay import trace_of
 from gprbot.drivers.gpr.sdk_client import READ_CHUNK, NicClock, SdkHttpClient

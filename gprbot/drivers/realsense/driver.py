@@ -20,8 +20,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.backoff import Backoff
 from gprbot.config import RealsenseConfig
-from gprbot.drivers.contract import Backoff
 from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.drivers.realsense.clock import DeviceClock
 from gprbot.drivers.realsense.handoff import Handoff
