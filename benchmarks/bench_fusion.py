@@ -24,10 +24,10 @@ import numpy as np  # noqa: E402
 from benchmarks.machine import machine_description as describe_machine  # noqa: E402
 from gprbot.config import FusionConfig  # noqa: E402
 from gprbot.fusion.ekf import ErrorStateEkf  # noqa: E402
-from gprbot.fusion.frames import VoMeasurement  # noqa: E402
 from gprbot.fusion.fuser import PoseFuser  # noqa: E402
 from gprbot.fusion.so3 import matrix_to_quat  # noqa: E402
 from gprbot.fusion.vo import RgbdOdometry  # noqa: E402
+from gprbot.messages import VoMeasurement  # noqa: E402
 from gprbot.motion.kinematics import KiwiKinematics  # noqa: E402
 from gprbot.sim.camera import FloorCamera  # noqa: E402
 from gprbot.sim.encoders import simulate_encoders  # noqa: E402

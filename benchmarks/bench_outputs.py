@@ -19,15 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.machine import machine_description
+from gprbot.apps.replay import load_run, record_simulated_survey, survey_bscans
 from gprbot.config import GeoreferenceConfig, load_config, to_dict
 from gprbot.exports.mcap_log import export_mcap
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
-from gprbot.infer.depth_slices import depth_bands, depth_slices, render_depth_slices
 from gprbot.infer.pipeline import reconstruct_survey
-from gprbot.infer.render3d import render_3d
-from gprbot.infer.run_files import velocity_note, write_exports
-from gprbot.infer.topdown import render_topdown
-from gprbot.replay import load_run, record_simulated_survey, survey_bscans
+from gprbot.outputs.depth_slices import depth_bands, depth_slices, render_depth_slices
+from gprbot.outputs.render3d import render_3d
+from gprbot.outputs.run_dir import velocity_note, write_exports
+from gprbot.outputs.topdown import render_topdown
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene
 

@@ -24,11 +24,11 @@ import numpy as np
 
 from benchmarks.machine import machine_description as describe_machine
 from gprbot.config import RealsenseConfig
-from gprbot.drivers.realsense.driver import RawRgbdFrame, RealsenseDriver
+from gprbot.drivers.realsense.driver import RealsenseDriver
 from gprbot.drivers.realsense.readings import MotionReading, Reading, RgbdReading
 from gprbot.drivers.realsense.recording import SoftwareD435i, write_recording
 from gprbot.drivers.realsense.source import RealsenseSource
-from gprbot.messages import ImuSample
+from gprbot.messages import ImuSample, RawRgbdFrame
 
 IMU_HZ, FPS = 400 + 250, 30
 
@@ -75,7 +75,7 @@ async def drain(
     seconds = time.perf_counter() - start
     if feeding:
         await feeding
-    await driver.stop()
+    await driver.close()
     return imu, frames, seconds
 
 

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 
 from benchmarks.machine import machine_description
+from gprbot.apps.replay import load_run, record_simulated_survey, replay_run, survey_messages
 from gprbot.config import load_config
 from gprbot.messages import ImuSample
-from gprbot.replay import load_run, record_simulated_survey, replay_run, survey_messages
 from gprbot.runlog import RunLogWriter
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene

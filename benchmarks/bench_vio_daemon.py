@@ -3,7 +3,7 @@
 The daemon runs in this process on the simulated robot: the D435i is a librealsense software device
 opened by the real RealsenseDriver (IMU 400 + 250 Hz, rendered RGB-D at 30 fps), VO runs in its thread,
 the RoboClaw and GPR emulators speak their protocols. The floor has the simulator's texture-poor patch
-across the first lines (VO loses tracking there) and the wheels slip (sim_robot). The survey is driven
+across the first lines (VO loses tracking there) and the wheels slip (simulated.robot). The survey is driven
 by the daemon with heading hold on the fused yaw. Recorded meanwhile: the true pose (20 Hz), every
 message the filter was given (in its order), a 10 ms ticker's lag, and per-thread CPU times.
 
@@ -36,11 +36,10 @@ from benchmarks.machine import machine_description
 from gprbot.config import load_config
 from gprbot.daemon import serve
 from gprbot.fusion.baselines import vo_only, wheel_only
-from gprbot.fusion.frames import VoMeasurement
 from gprbot.fusion.fuser import PoseFuser
 from gprbot.fusion.interpolate import interpolate_poses
 from gprbot.fusion.so3 import quat_to_matrix, yaw_of
-from gprbot.messages import ImuSample, Pose, WheelSpeeds
+from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
 from gprbot.robot.runtime import RobotRuntime
 
 
@@ -136,7 +135,7 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
         done.set()
         await sampler
         vo_health, stats = rt.vo.health(), rt.fusion.fuser.stats
-        rs_health = rt.realsense.health() if rt.realsense is not None else {}
+        rs_health = rt.realsense.streams() if rt.realsense is not None else {}
         daemon_poses = list(rt.fusion.fuser.history)
         start = rt.fusion.fuser._initial
         while run.state == "finishing":

@@ -19,13 +19,13 @@ from gprbot import __version__, progress
 from gprbot.errors import GprbotError, UsageError
 
 if TYPE_CHECKING:
+    from gprbot.apps.offline_demo import DemoResult
     from gprbot.config import Config
-    from gprbot.demo import DemoResult
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    from gprbot.apps.offline_demo import run_demo
     from gprbot.config import load_config
-    from gprbot.demo import run_demo
     from gprbot.sim.scene import builtin_scene_names, load_scene
 
     cfg = load_config(args.config)
@@ -74,11 +74,11 @@ def _demo_via_daemon(cfg: Config, args: argparse.Namespace) -> int:
     import asyncio
     import dataclasses
 
-    from gprbot.demo import survey_region
-    from gprbot.evaluation import compare_to_truth, format_truth_table, within_bounds
-    from gprbot.infer.outputs import read_pipes_json
-    from gprbot.robot.shell_demo import survey_via_shell
+    from gprbot.apps.daemon_demo import survey_via_shell
+    from gprbot.apps.offline_demo import survey_region
+    from gprbot.outputs.pipes_json import read_pipes_json
     from gprbot.sim.scene import load_scene
+    from gprbot.simulated.evaluation import compare_to_truth, format_truth_table, within_bounds
 
     if args.scene:
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, scene=args.scene))
@@ -123,7 +123,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_interpret(args: argparse.Namespace) -> int:
-    from gprbot.interpret_file import interpret_file
+    from gprbot.apps.interpret_file import interpret_file
 
     out = Path(args.out) if args.out else None
     config = None
@@ -131,7 +131,7 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
         from gprbot.config import load_config
 
         config = load_config(args.config)
-    from gprbot.interpret_file import default_out_dir, interpret_file_json
+    from gprbot.apps.interpret_file import default_out_dir, interpret_file_json
 
     out = out or default_out_dir(Path(args.file), config)
     report = interpret_file(
@@ -176,8 +176,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from gprbot.apps.replay import replay_run
     from gprbot.config import load_config
-    from gprbot.replay import replay_run
 
     run_dir = Path(args.run)
     out = Path(args.out) if args.out else run_dir / "replay"
@@ -216,7 +216,7 @@ def _cmd_config_check(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(to_dict(cfg), indent=2))
         return 0
-    devices = "simulated robot" if cfg.motors.port == "sim" else f"motors on {cfg.motors.port}"
+    devices = "simulated robot" if cfg.simulated else f"motors on {cfg.motors.port}"
     print(f"{args.file}: ok ({devices}; shell {cfg.shell.host}:{cfg.shell.port}; runs in {cfg.runs_dir}; "
           f"interpretation {cfg.interpretation.method}, completion {cfg.reconstruction.completion})")
     return 0

@@ -24,6 +24,10 @@ from gprbot.errors import ConfigError, ModelError
 Vec3 = tuple[float, float, float]
 
 
+DEFAULT_SHELL_PORT = 7878  # the operator's shell (shell.port; `gprbot shell HOST` without a port)
+CONTROL_PERIOD_S = 0.02  # the motion loop's period (50 Hz); the motors' fault bound and the encoder poll follow
+
+
 @dataclass(frozen=True)
 class GprConfig:
     """The GPR antenna and its acquisition settings."""
@@ -93,6 +97,9 @@ class ReconstructionConfig:
     """Registration of slices in 3D and completion into a dense cloud."""
 
     completion: Literal["geometric", "gprnet"] = "geometric"
+    # The resampling/completion RNG's seed. None: sim.seed, which seeded it before this key existed, so
+    # older configs and run logs reconstruct to the same bytes; set it on the robot, which has no sim.
+    seed: int | None = None
     sparse_points: int = 1500
     dense_points: int = 8192
     cluster_distance_m: float = 0.08
@@ -120,6 +127,11 @@ class MotorsConfig:
     retries: int = 2
     failsafe_timeout_s: float = 0.1  # the controller's own serial timeout: it stops if we go quiet
 
+    @property
+    def poll_rate_hz(self) -> float:
+        """How often the runtime reads the encoders: once per control period."""
+        return 1.0 / CONTROL_PERIOD_S
+
 
 @dataclass(frozen=True)
 class GprDeviceConfig:
@@ -134,7 +146,7 @@ class GprDeviceConfig:
     window_shift_ns: float = -1.0  # relative to the unit's calibrated reference: time zero lands 1 ns into the trace
     trigger_period_s: float = 0.01
     connect_timeout_s: float = 2.0
-    stall_timeout_s: float = 1.0  # no data this long: reported as a stall, data socket reopened
+    stall_timeout_s: float | None = None  # no data this long: a stall, socket reopened (None: 50 periods, ≥ 1 s)
 
 
 @dataclass(frozen=True)
@@ -223,7 +235,7 @@ class ShellConfig:
     """The operator's command shell: TCP (token required beyond loopback) and an optional serial console."""
 
     host: str = "127.0.0.1"
-    port: int = 7878
+    port: int = DEFAULT_SHELL_PORT
     token_file: str | None = None  # a 0600 file owned by the daemon's user; required when host is not loopback
     max_clients: int = 8  # authenticated sessions at once
     rate_per_s: float = 20.0
@@ -302,6 +314,9 @@ class RetentionConfig:
             raise ConfigError(f"retention.max_total_gb: expected > 0 (or null), got {self.max_total_gb}")
 
 
+SIMULATED = "sim"  # the address (motors.port, gpr_device.host, realsense.source) of a device the simulator emulates
+
+
 @dataclass(frozen=True)
 class Config:
     """The whole gprbot configuration."""
@@ -324,6 +339,21 @@ class Config:
     retention: RetentionConfig = field(default_factory=RetentionConfig)
     georeference: GeoreferenceConfig | None = None
     models_dir: str | None = None  # where model files are looked up by name (default: checkout or package)
+
+    @property
+    def reconstruction_seed(self) -> int:
+        """The seed of the reconstruction's RNG (reconstruction.seed, else sim.seed as before that key)."""
+        return self.sim.seed if self.reconstruction.seed is None else self.reconstruction.seed
+
+    @property
+    def simulated(self) -> bool:
+        """Whether the config selects the simulated robot (any device addressed as SIMULATED)."""
+        return SIMULATED in (self.motors.port, self.gpr_device.host, self.realsense.source)
+
+    @property
+    def all_simulated(self) -> bool:
+        """Whether every device is the simulated robot's (mixing simulated and real ones is refused)."""
+        return self.motors.port == self.gpr_device.host == self.realsense.source == SIMULATED
 
 
 CHECKOUT_ROOT = Path(__file__).resolve().parents[1]
@@ -461,6 +491,19 @@ def _check_yaml_shape(text: str) -> None:
                 raise ConfigError(f"more than {MAX_YAML_ALIASES} YAML aliases (*name); write the values out")
 
 
+def _derive_sampling(data: dict[str, Any]) -> dict[str, Any]:
+    """The sampling is defined once, by gpr.samples and gpr.time_window_ns: the NIC's points_per_trace and
+    time_sampling_interval_ps follow from them unless written out (then check_ranges holds them to it)."""
+    gpr, device = data.get("gpr"), data.get("gpr_device")
+    if not isinstance(gpr, dict) or not isinstance(device, dict | None):
+        return data  # no sampling given, or a shape build_dataclass reports
+    samples, window = gpr.get("samples", GprConfig.samples), gpr.get("time_window_ns", GprConfig.time_window_ns)
+    if not isinstance(samples, int) or isinstance(samples, bool) or not isinstance(window, int | float) or samples <= 0:
+        return data
+    derived = {"points_per_trace": samples, "time_sampling_interval_ps": 1000.0 * window / samples}
+    return {**data, "gpr_device": {**derived, **(device or {})}}
+
+
 def parse_config(text: str, source: str = "<string>") -> Config:
     """Parse YAML text into a Config (types checked, then value ranges)."""
     try:
@@ -475,7 +518,7 @@ def parse_config(text: str, source: str = "<string>") -> Config:
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: the top level must be a mapping of sections")
     try:
-        config: Config = build_dataclass(Config, data)
+        config: Config = build_dataclass(Config, _derive_sampling(data))
         check_ranges(config)
     except ConfigError as exc:
         raise ConfigError(f"{source}: {exc}") from None

@@ -161,6 +161,14 @@ def _check_relations(config: Any) -> None:
     if gpr.pre_trigger_ns >= gpr.time_window_ns:
         raise ConfigError(f"gpr.pre_trigger_ns: must be less than gpr.time_window_ns ({gpr.time_window_ns:g}), "
                           f"got {gpr.pre_trigger_ns:g}")
+    if device.points_per_trace != gpr.samples:
+        raise ConfigError(f"gpr_device.points_per_trace: must equal gpr.samples ({gpr.samples}), got "
+                          f"{device.points_per_trace}; leave it out to derive it from gpr")
+    device_window_ns = device.points_per_trace * device.time_sampling_interval_ps / 1000.0
+    if not math.isclose(device_window_ns, gpr.time_window_ns, rel_tol=1e-9):
+        raise ConfigError(f"gpr_device.time_sampling_interval_ps: {device.time_sampling_interval_ps:g} ps × "
+                          f"{device.points_per_trace} is {device_window_ns:g} ns, but gpr.time_window_ns is "
+                          f"{gpr.time_window_ns:g}; leave it out to derive it from gpr")
     if device.stacks & (device.stacks - 1):
         raise ConfigError(f"gpr_device.stacks: expected a power of 2 (1, 2, 4, ... 32768), got {device.stacks}")
     if len(motors.wheel_map) != 3:

@@ -19,7 +19,6 @@ import struct
 import subprocess
 import zlib
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +28,7 @@ from gprbot import __version__
 from gprbot.atomic_files import fsync_directory
 from gprbot.config import to_dict
 from gprbot.errors import GprbotError
-from gprbot.messages import encode, register_message
+from gprbot.messages import encode
 
 FORMAT = "gprbot-runlog"
 VERSION = 1
@@ -40,17 +39,6 @@ KIND_HEADER, KIND_MESSAGE, KIND_END = b"H", b"M", b"E"
 MAX_RECORD_BYTES = 512 * 1024 * 1024  # a length above this is corruption, not a record
 SEGMENT_PATTERN = "log-{:03d}.msgpack"
 _SECRET_WORDS = ("token", "password", "passwd", "secret", "api_key", "apikey", "private_key", "credential")
-
-
-@register_message
-@dataclass(frozen=True)
-class SurveyEvent:
-    """A survey control event on the monotonic clock: kind "line_start" | "line_end" | "survey_start" |
-    "survey_end" | "abort"; `line` is the survey line index (-1 for survey-wide events)."""
-
-    t: float
-    kind: str
-    line: int = -1
 
 
 def segment_path(run_dir: Path, index: int) -> Path:

@@ -7,12 +7,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gprbot.config import Config
 from gprbot.errors import InterpretationError
 from gprbot.fusion.interpolate import interpolate_poses
+from gprbot.geometry import antenna_positions
 from gprbot.gpr.bscan import BScan
-from gprbot.infer.register import antenna_positions
 from gprbot.messages import Pose, Trace
 from gprbot.motion.planner import SurveyPlan
+
+
+def start_pose(cfg: Config) -> tuple[float, float, float]:
+    """Where the base starts (x, y, yaw): the antenna midpoint over the survey's start point, heading +x."""
+    lever = cfg.mount.antenna_lever_arm_m
+    x0, y0 = cfg.survey.start_xy_m
+    return (x0 - lever[0], y0 - lever[1], 0.0)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import argparse
 import ipaddress
 import sys
 
-from gprbot.config import Config, load_config
+from gprbot.config import SIMULATED, Config, load_config
 from gprbot.errors import GprbotError
 from gprbot.shutdown_budget import SHUTDOWN_BUDGET_S, SHUTDOWN_STEPS_S
 
@@ -24,7 +24,7 @@ def allowed_networks(cfg: Config) -> list[str]:
     """IPAddressAllow= entries: loopback, the NIC's address (a host), the operators' subnets."""
     allowed = ["localhost"]
     host = cfg.gpr_device.host
-    if host != "sim":
+    if host != SIMULATED:
         try:
             address = ipaddress.ip_address(host)
         except ValueError:

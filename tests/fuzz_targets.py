@@ -18,7 +18,8 @@ from gprbot.drivers.motors import protocol as rc
 from gprbot.drivers.motors.device_side import RequestFramer
 from gprbot.drivers.motors.replies import ReplyParser
 from gprbot.errors import ConfigError, DataFormatError, ProtocolError
-from gprbot.runlog import RunLogWriter, SurveyEvent
+from gprbot.messages import SurveyEvent
+from gprbot.runlog import RunLogWriter
 from gprbot.runlog_reader import RunLogReader
 from gprbot.shell.commands import CommandError, parse_command
 from gprbot.shell.protocol import LineReceived, LineSplitter, ReplyReader

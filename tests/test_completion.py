@@ -16,8 +16,8 @@ import pytest
 from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
-from gprbot.infer.completion import PipeModel, geometric_completion, pipe_colors
-from gprbot.infer.register import SliceCloud, register_slice
+from gprbot.reconstruct.completion import PipeModel, geometric_completion, pipe_colors
+from gprbot.reconstruct.register import SliceCloud, register_slice
 
 X_COLUMNS = np.arange(0.0, 2.0, 0.01)  # 1 cm traces
 DEPTHS = np.arange(0.0, 0.6, 0.005)  # 5 mm depth pixels

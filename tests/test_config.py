@@ -99,3 +99,35 @@ def test_builtin_configs_load_by_name(tmp_path: Path, monkeypatch: pytest.Monkey
     assert load_config("sim_learned").interpretation.method == "migrationnet"
     with pytest.raises(ConfigError, match="built-in configs: robot, sim, sim_learned"):
         load_config("no_such_config")
+
+
+def test_the_nic_sampling_is_derived_from_gpr_and_checked_against_it() -> None:
+    cfg = parse_config("gpr: {samples: 256, time_window_ns: 25.6}\n")
+    assert cfg.gpr_device.points_per_trace == 256 and cfg.gpr_device.time_sampling_interval_ps == 100.0
+    with pytest.raises(ConfigError, match=r"gpr_device\.points_per_trace: must equal gpr\.samples \(256\)"):
+        parse_config("gpr: {samples: 256}\ngpr_device: {points_per_trace: 512}\n")
+    with pytest.raises(ConfigError, match=r"gpr_device\.time_sampling_interval_ps: 50 ps × 512 is 25\.6 ns"):
+        parse_config("gpr_device: {time_sampling_interval_ps: 50}\n")
+
+
+def test_the_once_dead_device_keys_reach_the_drivers() -> None:
+    from gprbot.drivers.gpr.driver import GprDriver
+    from gprbot.drivers.realsense.driver import RealsenseDriver
+
+    cfg = parse_config("realsense: {stall_timeout_s: 7.5, reconnect_backoff_s: [0.25, 4.0], "
+                       "clock_jump_threshold_s: 0.3}\ngpr_device: {stall_timeout_s: 2.5}\n")
+    camera = RealsenseDriver(cfg.realsense)
+    assert (camera.stall_timeout_s, camera.backoff_initial_s, camera.backoff_max_s, camera.jump_threshold_s) == (
+        7.5, 0.25, 4.0, 0.3)
+    assert GprDriver(cfg.gpr_device)._stall_timeout_s == 2.5
+    assert GprDriver(load_config().gpr_device)._stall_timeout_s == 1.0  # unset: 50 trigger periods, at least 1 s
+
+
+def test_one_place_for_the_shell_port_and_the_control_period() -> None:
+    from gprbot.config import CONTROL_PERIOD_S, DEFAULT_SHELL_PORT
+    from gprbot.drivers.motors import safety
+    from gprbot.robot import runtime
+    from gprbot.shell import client
+
+    assert load_config().shell.port == DEFAULT_SHELL_PORT == client.DEFAULT_PORT
+    assert safety.CONTROL_PERIOD_S is runtime.CONTROL_PERIOD_S is CONTROL_PERIOD_S

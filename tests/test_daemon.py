@@ -19,12 +19,13 @@ import pytest
 from plyfile import PlyData
 
 from gprbot.config import Config, load_config
-from gprbot.daemon import Supervisor, TaskSpec, serve
+from gprbot.daemon import serve
+from gprbot.messages import SurveyEvent
 from gprbot.robot.runtime import RobotRuntime
-from gprbot.runlog import SurveyEvent
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sdnotify import SdNotifier, watchdog_interval_s
 from gprbot.shell.protocol import ReplyReader, ServerEvent, ServerReply
+from gprbot.supervisor import Supervisor, TaskSpec
 
 
 # ----- sd_notify ------------------------------------------------------------------------------------

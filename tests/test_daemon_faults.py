@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from gprbot.replay import replay_run
+from gprbot.apps.replay import replay_run
 from gprbot.runlog_reader import RunLogReader
 from gprbot.shell.client import ShellConnection
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
+from gprbot.apps.offline_demo import run_demo
 from gprbot.cli import main
 from gprbot.config import load_config
-from gprbot.demo import run_demo
 from gprbot.sim.scene import builtin_scene_names, load_scene
 
 

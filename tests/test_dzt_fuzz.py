@@ -27,7 +27,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gprbot import interpret_file
+from gprbot.apps import interpret_file
 from gprbot.config import GprConfig, load_config
 from gprbot.errors import DataFormatError, GprbotError
 from gprbot.gpr.bscan import bscan_from_dzt

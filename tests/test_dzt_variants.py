@@ -336,7 +336,7 @@ def test_antenna_names(name: str, mhz: float | None) -> None:
 
 
 def test_interpret_file_still_exports_the_antenna_table() -> None:
-    from gprbot import interpret_file
+    from gprbot.apps import interpret_file
 
     assert interpret_file.antenna_frequency_mhz("3101") == 900.0 and interpret_file.GSSI_ANTENNAS["5103"] == 400
 

@@ -10,10 +10,9 @@ import pytest
 from gprbot.config import FusionConfig, MotorsConfig
 from gprbot.errors import ConfigError, GprbotError
 from gprbot.fusion.baselines import wheel_only
-from gprbot.fusion.frames import VoMeasurement
 from gprbot.fusion.fuser import PoseFuser, SensorMessage
 from gprbot.fusion.so3 import exp_so3, matrix_to_quat, yaw_of
-from gprbot.messages import Pose, WheelSpeeds
+from gprbot.messages import Pose, VoMeasurement, WheelSpeeds
 from gprbot.sim.encoders import simulate_encoders
 from gprbot.sim.imu import simulate_imu
 from gprbot.sim.motion_truth import GroundTruth, straight_ground_truth

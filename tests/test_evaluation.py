@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gprbot.evaluation import compare_to_truth, format_truth_table, within_bounds
-from gprbot.infer.completion import PipeModel
+from gprbot.reconstruct.completion import PipeModel
 from gprbot.sim.scene import load_scene
+from gprbot.simulated.evaluation import compare_to_truth, format_truth_table, within_bounds
 
 
 def _model(axis: np.ndarray, radius: float) -> PipeModel:

@@ -16,15 +16,15 @@ import pytest
 from mcap.reader import make_reader
 from plyfile import PlyData
 
+from gprbot.apps.replay import record_simulated_survey, replay_run
 from gprbot.cli import main
 from gprbot.config import GeoreferenceConfig, load_config
 from gprbot.errors import ConfigError
-from gprbot.exports.dxf import write_dxf
-from gprbot.exports.georef import Georeference
 from gprbot.exports.mcap_log import export_mcap
-from gprbot.infer.completion import PipeModel
 from gprbot.messages import Pose, Trace
-from gprbot.replay import record_simulated_survey, replay_run
+from gprbot.outputs.dxf import write_dxf
+from gprbot.outputs.georef import Georeference
+from gprbot.reconstruct.completion import PipeModel
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene
 

@@ -9,14 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gprbot.apps.replay import load_run
 from gprbot.config import MotorsConfig, load_config
 from gprbot.daemon import serve
 from gprbot.errors import GprbotError
-from gprbot.fusion.frames import VoHealth, VoMeasurement
 from gprbot.fusion.fuser import PoseFuser
-from gprbot.fusion.snapshot import FusionSnapshot, restore, take_snapshot
-from gprbot.messages import Pose, decode, encode
-from gprbot.replay import load_run
+from gprbot.fusion.snapshot import restore, take_snapshot
+from gprbot.messages import FusionSnapshot, Pose, VoHealth, VoMeasurement, decode, encode
 from gprbot.robot.runtime import RobotRuntime
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sdnotify import SdNotifier

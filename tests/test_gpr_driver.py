@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 from gprbot.config import GprDeviceConfig
-from gprbot.drivers.gpr.driver import DeviceClock, GprDriver
+from gprbot.drivers.gpr.driver import GprDriver, NicClock
 from gprbot.drivers.gpr.emulator import GprSdkEmulator
 from gprbot.drivers.gpr.protocol import DeviceRejectedError, TraceFrame, TraceStreamParser
+from gprbot.drivers.gpr.raw_replay import traces_from_raw
 from gprbot.errors import DriverError
-from gprbot.messages import Trace
+from gprbot.messages import GprRawChunk, GprStreamSetup, Trace
 
 PPT = 128
 RATE_HZ = 250.0
@@ -59,7 +60,7 @@ async def running(emu: GprSdkEmulator, **kwargs: Any) -> AsyncIterator[GprDriver
     try:
         yield driver
     finally:
-        await driver.stop()
+        await driver.close()
 
 
 Action = Callable[[], Awaitable[None] | None]
@@ -101,8 +102,8 @@ async def test_start_receives_traces_in_order_with_exact_samples(emulator: GprSd
     def host_clock() -> float:  # a host clock unlike the NIC's
         return time.monotonic() + 1000.0
 
-    raw: list[bytes] = []
-    async with running(emulator, clock=host_clock, raw_sink=lambda t, chunk: raw.append(chunk)) as driver:
+    raw: list[GprStreamSetup | GprRawChunk] = []
+    async with running(emulator, clock=host_clock, raw_sink=raw.append) as driver:
         got = await take(driver, 25)
         health = driver.health()
     assert [t.number for t in got] == list(range(1, 26))
@@ -117,15 +118,19 @@ async def test_start_receives_traces_in_order_with_exact_samples(emulator: GprSd
                                                   ("PUT", "/api/nic/acquisition"))]
     assert order[:4] == [("GET", "/api"), ("PUT", "/api/nic/power"), setup_put, ("PUT", "/api/nic/acquisition")]
     assert emulator.acquisition_state == 0  # stop() stopped the acquisition
-    replayed = [e for e in TraceStreamParser(PPT).feed(b"".join(raw)) if isinstance(e, TraceFrame)]
+    chunks = b"".join(r.data for r in raw if isinstance(r, GprRawChunk))
+    replayed = [e for e in TraceStreamParser(PPT).feed(chunks) if isinstance(e, TraceFrame)]
     assert [(e.number, e.samples.tobytes()) for e in replayed[:25]] == [(t.number, t.samples.tobytes()) for t in got]
+    again = traces_from_raw(raw)  # the recorded stream through the driver's parser and clock: the same traces
+    assert [(t.t, t.number, t.dt_ns, t.t0_ns, t.samples.tobytes()) for t in again[:25]] == [
+        (t.t, t.number, t.dt_ns, t.t0_ns, t.samples.tobytes()) for t in got]
 
 
 async def test_stop_ends_the_trace_iterator(emulator: GprSdkEmulator) -> None:
     driver = GprDriver(emulator.driver_config(BASE))
     await driver.start()
     await take(driver, 3)
-    await driver.stop()
+    await driver.close()
     async with asyncio.timeout(2.0):
         remaining = [t async for t in driver.traces()]
     assert all(t.number > 3 for t in remaining)
@@ -196,7 +201,7 @@ async def test_rounded_setup_is_applied_and_reported(emulator: GprSdkEmulator) -
     try:
         [trace] = await take(driver, 1)
     finally:
-        await driver.stop()
+        await driver.close()
     assert trace.dt_ns == pytest.approx(0.1)  # the NIC rounds to its 50 ps steps; the driver uses that
     assert "adjusted the setup: time_sampling_interval_ps 120.0 -> 100.0" in (driver.health().last_error or "")
 
@@ -293,7 +298,7 @@ async def test_device_clock_jump_is_reported_and_host_times_stay_sane() -> None:
 
 def test_device_clock_keeps_the_least_latency_offset_and_detects_jumps() -> None:
     rng = np.random.default_rng(3)
-    clock = DeviceClock(max_latency_s=2.0)
+    clock = NicClock(max_latency_s=2.0)
     device = 1.7e9 + np.arange(300) * 0.01
     latency = rng.uniform(0.0, 0.005, 300)
     latency[0] = 0.2  # the first trace arrived late: the estimate must improve from it

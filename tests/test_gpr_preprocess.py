@@ -10,7 +10,7 @@ import pytest
 
 from gprbot.config import GprConfig
 from gprbot.errors import InterpretationError
-from gprbot.gpr.bscan import BScan, SyntheticTarget, along_track_distance, ricker, synthetic_bscan
+from gprbot.gpr.bscan import BScan, SyntheticTarget, along_track_distance, synthetic_bscan
 from gprbot.gpr.preprocess import (
     apply_gain,
     dewow,
@@ -19,6 +19,7 @@ from gprbot.gpr.preprocess import (
     remove_background,
 )
 from gprbot.gpr.traveltime import C_M_PER_NS, velocity_from_eps
+from gprbot.gpr.wavelet import ricker
 
 GPR = GprConfig()
 DT = GPR.dt_ns

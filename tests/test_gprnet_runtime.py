@@ -16,7 +16,7 @@ from gprbot.config import ReconstructionConfig  # noqa: E402
 from gprbot.errors import InterpretationError, ModelError  # noqa: E402
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction, normalisation  # noqa: E402
 from gprbot.infer.onnx_model import file_sha256  # noqa: E402
-from gprbot.infer.register import register_slice  # noqa: E402
+from gprbot.reconstruct.register import register_slice  # noqa: E402
 from training import train_completion  # noqa: E402
 from training.pointcloud_models import build_gprnet  # noqa: E402
 

@@ -38,7 +38,8 @@ async def test_a_fusion_backlog_is_drained_in_slices_that_let_other_tasks_run() 
 
 def test_gprbot_demo_exits_non_zero_when_its_truth_check_fails(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    from gprbot import cli, demo
+    from gprbot import cli
+    from gprbot.apps import offline_demo as demo
 
     result = types.SimpleNamespace(lines=[], reconstruction=types.SimpleNamespace(pipes=[]), velocity_estimated=False,
                                    velocity_m_per_ns=0.1)

@@ -17,10 +17,9 @@ import pytest
 from gprbot.config import MotorsConfig
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.motors.emulator import RoboClawEmulator
-from gprbot.drivers.motors.encoders import WheelEncoders
 from gprbot.drivers.motors.safety import check_motors_config
 from gprbot.errors import ConfigError, DriverError
-from gprbot.messages import WheelSpeeds, decode, encode
+from gprbot.messages import WheelEncoders, WheelSpeeds, decode, encode
 
 CPR = 1024
 CFG = MotorsConfig(

@@ -11,9 +11,9 @@ import pytest
 
 from gprbot.atomic_files import atomic_open
 from gprbot.errors import DataFormatError
-from gprbot.infer.completion import PipeModel, Reconstruction, pipe_colors
-from gprbot.infer.outputs import read_pipes_json, write_json_atomic, write_pipes_json
-from gprbot.infer.topdown import MAP_SIDE_PX, MARGIN_PX, render_topdown
+from gprbot.outputs.pipes_json import read_pipes_json, write_json_atomic, write_pipes_json
+from gprbot.outputs.topdown import MAP_SIDE_PX, MARGIN_PX, render_topdown
+from gprbot.reconstruct.completion import PipeModel, Reconstruction, pipe_colors
 
 
 def reconstruction() -> Reconstruction:

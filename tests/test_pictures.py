@@ -105,7 +105,7 @@ def test_config_check(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
 
 
 def test_interpret_draws_the_bscan_at_the_chains_time_zero() -> None:
-    from gprbot.interpret_file import shown_bscan
+    from gprbot.apps.interpret_file import shown_bscan
 
     raw = replace(_line(0.45), t0_ns=float("nan"))  # a file without time zero: the chain estimates it
     shown = shown_bscan(raw, GPR, 0.61)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from plyfile import PlyData, PlyElement
 
-import gprbot.infer.outputs as outputs
+import gprbot.outputs.pipes_json as outputs
 from gprbot.errors import DataFormatError
-from gprbot.infer.ply import read_ply, write_ply
+from gprbot.outputs.ply import read_ply, write_ply
 
 
 @pytest.fixture

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from gprbot.fusion.fuser import PoseFuser
-from gprbot.infer.completion import Reconstruction, geometric_completion, pose_confidence
-from gprbot.infer.outputs import read_pipes_json, write_pipes_json
 from gprbot.messages import Pose, Trace
+from gprbot.outputs.pipes_json import read_pipes_json, write_pipes_json
+from gprbot.reconstruct.completion import Reconstruction, geometric_completion, pose_confidence
 from gprbot.sim.motion_truth import straight_ground_truth
 from gprbot.survey import assemble_bscan
 from tests.test_completion import CFG, make_slices, straight

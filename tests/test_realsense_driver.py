@@ -15,11 +15,12 @@ import pytest
 
 from gprbot.config import RealsenseConfig
 from gprbot.drivers.realsense.clock import FramePairer
-from gprbot.drivers.realsense.driver import Handoff, RawRgbdFrame, RealsenseDriver
+from gprbot.drivers.realsense.driver import Handoff, RealsenseDriver
 from gprbot.drivers.realsense.recording import SoftwareD435i, write_recording
 from gprbot.drivers.realsense.source import MotionReading, Reading, RealsenseSource, SourceEvent
 from gprbot.errors import DriverError
-from gprbot.messages import ImuSample, decode, encode
+from gprbot.messages import ImuSample, RawRgbdFrame, decode, encode
+from tests.aio import within
 
 rs = pytest.importorskip("pyrealsense2")
 
@@ -62,7 +63,7 @@ async def play(path: Path, clock: Callable[[], float] = time.monotonic) -> tuple
     driver = RealsenseDriver(RealsenseConfig(playback=str(path)), clock=clock)
     await driver.start()
     messages = [m async for m in driver]
-    await driver.stop()
+    await driver.close()
     return messages, driver
 
 
@@ -101,9 +102,9 @@ async def test_playback_returns_every_sample_with_its_values_and_device_spacing(
 async def test_playback_health_shows_recorded_rates_and_no_drops(recording: Path) -> None:
     driver = RealsenseDriver(RealsenseConfig(playback=str(recording)))
     async with driver:
-        connected = {name: h.connected for name, h in driver.health().items()}
+        connected = {name: h.connected for name, h in driver.streams().items()}
         count = sum([1 async for _ in driver])
-        health = driver.health()
+        health = driver.streams()
     assert count == 680 and all(connected.values())
     assert {name: round(h.rate_hz) for name, h in health.items()} == {
         "gyro": 400, "accel": 250, "depth": 30, "color": 30
@@ -170,8 +171,8 @@ async def test_live_path_pairs_frames_and_converts_on_the_minimum_delay(truth: T
     await driver.start()
     await asyncio.to_thread(stream)
     got = await take(driver, 680, types=(ImuSample, RawRgbdFrame))
-    health = driver.health()
-    await driver.stop()
+    health = driver.streams()
+    await driver.close()
     gyro, accel, frames = split(list(got))
     assert (len(gyro), len(accel), len(frames)) == (400, 250, 30)
     assert np.array_equal([m.gyro for m in gyro], truth.gyro.astype(np.float32).astype(np.float64))
@@ -191,7 +192,7 @@ async def test_stop_in_the_middle_of_a_playback_returns(recording: Path) -> None
         seen += 1
         if seen == 5:
             break
-    await asyncio.wait_for(driver.stop(), 10.0)
+    await within(driver.close(), 10.0)
     assert [m async for m in driver] == []
 
 
@@ -315,8 +316,8 @@ async def test_lost_device_is_reopened_with_backoff_and_its_new_clock_anchored()
     driver = scripted([first, None, again], stall_timeout_s=5.0)
     await driver.start()
     got = await take(driver, 20)
-    health = driver.health()["gyro"]
-    await driver.stop()
+    health = driver.streams()["gyro"]
+    await driver.close()
     expected = [10.001 + 0.0025 * n for n in range(10)] + [20.001 + 0.0025 * n for n in range(10)]
     assert np.allclose([m.t for m in got], expected, atol=1e-9)
     assert driver.reconnects == 1 and driver.clock_jumps == 0
@@ -328,10 +329,10 @@ async def test_a_silent_device_counts_as_lost() -> None:
     driver = scripted([gyro([0, 1, 2], 0.0, 1.0), gyro([0, 1, 2], 0.0, 2.0)], stall_timeout_s=0.1)
     await driver.start()
     got = await take(driver, 6)
-    await driver.stop()
+    await driver.close()
     assert [m.t for m in got][3] == pytest.approx(2.001)
     assert driver.reconnects == 1
-    assert "no frames for 0.1 s" in str(driver.health()["gyro"].last_error)
+    assert "no frames for 0.1 s" in str(driver.streams()["gyro"].last_error)
 
 
 async def test_frame_number_gaps_are_drops_and_errors_are_recorded() -> None:
@@ -340,10 +341,10 @@ async def test_frame_number_gaps_are_drops_and_errors_are_recorded() -> None:
     await driver.start()
     await take(driver, 6)
     async with asyncio.timeout(5.0):
-        while driver.health()["gyro"].errors == 0:  # the error event follows from the source's thread
+        while driver.streams()["gyro"].errors == 0:  # the error event follows from the source's thread
             await asyncio.sleep(0.001)
-    health = driver.health()
-    await driver.stop()
+    health = driver.streams()
+    await driver.close()
     assert health["gyro"].drops == 4
     assert health["gyro"].last_error == "RuntimeError: bad frame"
     assert not health["depth"].connected and "no depth stream" in str(health["depth"].last_error)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from gprbot.config import RealsenseConfig
-from gprbot.drivers.realsense.driver import RawRgbdFrame, RealsenseDriver
-from gprbot.fusion.frames import CameraMount
-from gprbot.messages import ImuSample
+from gprbot.drivers.realsense.driver import RealsenseDriver
+from gprbot.geometry import CameraMount
+from gprbot.messages import ImuSample, RawRgbdFrame
 
 rs = pytest.importorskip("pyrealsense2")
 
@@ -77,8 +77,8 @@ async def test_the_emulator_is_opened_and_streamed_like_a_camera_on_usb() -> Non
     await feed_imu()
     emulator.stop()
     await asyncio.sleep(0.2)
-    health = driver.health()
-    await driver.stop()
+    health = driver.streams()
+    await driver.close()
     await consumer
     frames = [m for m in received if isinstance(m, RawRgbdFrame)]
     gyro = [m for m in received if isinstance(m, ImuSample)]

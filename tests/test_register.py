@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from gprbot.errors import InterpretationError
-from gprbot.infer.register import antenna_positions, register_slice, resample_cloud
+from gprbot.geometry import antenna_positions
 from gprbot.messages import Pose
+from gprbot.reconstruct.register import register_slice, resample_cloud
 
 
 def yaw_quaternion(deg: float) -> np.ndarray:

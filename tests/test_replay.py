@@ -11,12 +11,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from gprbot.apps.replay import fuse_poses, load_run, record_simulated_survey, replay_run, windows_from_events
 from gprbot.config import load_config
 from gprbot.errors import GprbotError
 from gprbot.infer.pipeline import reconstruct_survey
-from gprbot.messages import ImuSample, Pose, WheelSpeeds
-from gprbot.replay import fuse_poses, load_run, record_simulated_survey, replay_run, windows_from_events
-from gprbot.runlog import SurveyEvent, segment_path
+from gprbot.messages import ImuSample, Pose, SurveyEvent, WheelSpeeds
+from gprbot.runlog import segment_path
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene
 from gprbot.survey import assemble_bscan, line_windows, split_by_line
@@ -32,7 +32,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     by_line = split_by_line(sim.traces, line_windows(sim.plan))
     lever = cfg.mount.antenna_lever_arm_m
     bscans = {line: assemble_bscan(tr, sim.trajectory.estimated_poses, lever) for line, tr in by_line.items()}
-    direct = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
+    direct = reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.reconstruction_seed))
     return {"cfg": cfg, "run_dir": run_dir, "sim": sim, "direct": direct}
 
 

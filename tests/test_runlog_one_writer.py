@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from gprbot.messages import SurveyEvent
 from gprbot.robot.recorder import Recorder
-from gprbot.runlog import KIND_MESSAGE, RunLogWriter, SurveyEvent, frame
+from gprbot.runlog import KIND_MESSAGE, RunLogWriter, frame
 from gprbot.runlog_reader import RunLogReader
 
 

@@ -17,6 +17,7 @@ from gprbot.shell.fake import FakeHandler
 from gprbot.shell.handler import EventBus
 from gprbot.shell.protocol import LineSplitter, Reply, ReplyReader, ServerReply, encode_reply
 from gprbot.shell.server import SerialShell, ShellServer
+from tests.aio import within
 
 VERBS = ["help", "status", "jog", "stop", "estop", "reset", "survey", "runs", "files", "pull", "auth", "fly", ""]
 ARGS = ["0.1", "-2", "1e309", "nan", "start", "pause", "lines=3", "spacing=0.1", "speed=x", "..", "/etc/passwd",
@@ -66,7 +67,7 @@ async def test_thousands_of_random_lines_over_tcp_each_get_one_reply(tmp_path: P
                 writer.write(stream[position:position + step])
                 position += step
             writer.write_eof()
-            output = await asyncio.wait_for(reader.read(), 20)  # the server answers everything, then closes
+            output = await within(reader.read(), 20)  # the server answers everything, then closes
             replies, _ = count_replies(output)
             assert replies == stream.count(b"\n") == 2000
             writer.close()
@@ -74,7 +75,7 @@ async def test_thousands_of_random_lines_over_tcp_each_get_one_reply(tmp_path: P
         assert server.client_count == 0
         reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
         writer.write(b"status\n")
-        assert (await asyncio.wait_for(reader.readuntil(b"ok status\n"), 5)).endswith(b"ok status\n")
+        assert (await within(reader.readuntil(b"ok status\n"), 5)).endswith(b"ok status\n")
         writer.close()
         await writer.wait_closed()
     finally:
@@ -101,9 +102,9 @@ async def test_random_lines_over_serial_each_get_one_reply(tmp_path: Path) -> No
         writer.write(stream)
         output = b""
         while count_replies(output)[0] < 2000:
-            output += await asyncio.wait_for(reader.read(65536), 10)
+            output += await within(reader.read(65536), 10)
         writer.write(b"status\n")  # anything beyond one reply per line would show up before this one's
-        output += await asyncio.wait_for(reader.readuntil(b"ok status\n"), 10)
+        output += await within(reader.readuntil(b"ok status\n"), 10)
         assert count_replies(output)[0] == stream.count(b"\n") + 1 == 2001
     finally:
         write_transport.close()

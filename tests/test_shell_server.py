@@ -26,6 +26,7 @@ from gprbot.shell.handler import EventBus
 from gprbot.shell.interactive import pull_main
 from gprbot.shell.protocol import Reply
 from gprbot.shell.server import SerialShell, ShellServer
+from tests.aio import within
 
 TIMEOUT = 5.0
 
@@ -47,7 +48,7 @@ class RawClient:
         await self.writer.drain()
 
     async def line(self) -> str:
-        data = await asyncio.wait_for(self.reader.readline(), TIMEOUT)
+        data = await within(self.reader.readline(), TIMEOUT)
         assert data.endswith(b"\n"), f"connection closed, got {data!r}"
         return data[:-1].decode()
 
@@ -194,7 +195,7 @@ async def test_pull_sends_exact_bytes_and_sha256_then_the_session_goes_on(server
     await client.send("pull run1 cloud.ply")
     verb, size, sha = (await client.line()).split()[1:]
     assert verb == "pull" and int(size) == len(expected) and sha == hashlib.sha256(expected).hexdigest()
-    data = await asyncio.wait_for(client.reader.readexactly(int(size)), TIMEOUT)
+    data = await within(client.reader.readexactly(int(size)), TIMEOUT)
     assert data == expected
     assert await client.ask("status") == "ok status"
     body, status = await client.ask_full("files run1")
@@ -228,7 +229,7 @@ async def test_client_limit_refuses_the_extra_connection(server: ShellServer) ->
     extra = await RawClient.connect(server.port)
     assert await extra.ask("estop") == "ok estop"  # e-stop gets through a full server
     assert (await extra.ask("status")).startswith("error busy too many clients")
-    assert await asyncio.wait_for(extra.reader.read(), TIMEOUT) == b""
+    assert await within(extra.reader.read(), TIMEOUT) == b""
     await clients[0].close()
     for _ in range(100):  # the server notices the close asynchronously
         if server.client_count < 3:
@@ -275,7 +276,7 @@ async def test_serial_shell_over_a_pty(runs_dir: Path) -> None:
     try:
         async def exchange(data: bytes, count: int) -> list[bytes]:
             os.write(master, data)
-            return [await asyncio.wait_for(reader.readline(), TIMEOUT) for _ in range(count)]
+            return [await within(reader.readline(), TIMEOUT) for _ in range(count)]
 
         assert await exchange(b"status\r\n", 3) == [b"= mode idle\n", b"= commands 1\n", b"ok status\n"]
         assert await exchange(b"jog 0.1 0.1 1\n", 1) == [b"ok jog 0.1 0.1 1\n"]
@@ -284,7 +285,7 @@ async def test_serial_shell_over_a_pty(runs_dir: Path) -> None:
         assert await exchange(b"reset\njog 0.1 0 1\n", 2) == [b"ok reset\n", b"ok jog 0.1 0 1\n"]
         assert await exchange(b"x" * 400 + b"\n", 1) == [b"error too_long line longer than 256 bytes; ignored\n"]
         bus.broadcast("survey line 1 done")
-        assert await asyncio.wait_for(reader.readline(), TIMEOUT) == b"* survey line 1 done\n"
+        assert await within(reader.readline(), TIMEOUT) == b"* survey line 1 done\n"
         assert handler.estops == [-1]
     finally:
         read_transport.close()
@@ -385,7 +386,7 @@ async def test_repeated_wrong_tokens_end_the_session(runs_dir: Path, tmp_path: P
         await client.send(b"auth guess-guess-guess-1\n" * 5 + b"status\n")
         for _ in range(5):
             assert (await client.reply())[1] == "error unauthorized wrong token"
-        assert await asyncio.wait_for(client.reader.read(), TIMEOUT) == b""  # closed: no reply to status
+        assert await within(client.reader.read(), TIMEOUT) == b""  # closed: no reply to status
         await client.close()
     finally:
         await shell.close()
@@ -458,9 +459,9 @@ async def test_close_does_not_wait_for_a_stuck_handler(runs_dir: Path) -> None:
     client = await RawClient.connect(shell.port)
     await client.send("status")
     await asyncio.sleep(0.05)
-    await asyncio.wait_for(shell.close(grace_s=0.1), TIMEOUT)
+    await within(shell.close(grace_s=0.1), TIMEOUT)
     assert shell.client_count == 0
-    assert await asyncio.wait_for(client.reader.read(), TIMEOUT) == b""
+    assert await within(client.reader.read(), TIMEOUT) == b""
     await client.close()
 
 

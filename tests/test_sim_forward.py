@@ -10,7 +10,8 @@ import pytest
 
 from gprbot.config import GprConfig
 from gprbot.gpr.traveltime import C_M_PER_NS, two_way_time, velocity_from_eps
-from gprbot.sim.forward import ricker, simulate_bscan
+from gprbot.gpr.wavelet import ricker
+from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.scene import Fill, Pipe, Scene, Slab, load_scene
 from gprbot.sim.truth import cross_section_mask, sample_pipe_interiors
 

@@ -15,14 +15,15 @@ from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.messages import ImuSample, WheelSpeeds
 from gprbot.motion.kinematics import KiwiKinematics, planar_pose_message
 from gprbot.motion.planner import Segment
-from gprbot.robot.sim_robot import GRAVITY_M_S2, SimRobot, is_simulated, start_pose
 from gprbot.robot.tracking import tracking_velocity
 from gprbot.sim.forward import simulate_bscan
+from gprbot.simulated.robot import GRAVITY_M_S2, SimRobot
+from gprbot.survey import start_pose
 
 
 def test_the_default_config_is_the_simulated_robot_starting_with_the_antenna_on_the_start_point() -> None:
     cfg = load_config()
-    assert is_simulated(cfg)
+    assert cfg.simulated
     x, y, yaw = start_pose(cfg)
     lever = cfg.mount.antenna_lever_arm_m
     assert (x + lever[0], y + lever[1], yaw) == (*cfg.survey.start_xy_m, 0.0)
@@ -78,7 +79,7 @@ async def test_gpr_traces_are_the_forward_model_at_the_true_antenna_position() -
                 if len(traces) == 10:
                     break
     finally:
-        await driver.stop()
+        await driver.close()
         await robot.close()
     assert traces[0].dt_ns == cfg.gpr.dt_ns and traces[0].t0_ns == cfg.gpr.pre_trigger_ns
     assert traces[0].samples.size == cfg.gpr.samples

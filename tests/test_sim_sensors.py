@@ -9,8 +9,8 @@ import pytest
 
 from gprbot.config import MotorsConfig
 from gprbot.fusion.baselines import imu_dead_reckoning, wheel_only
-from gprbot.fusion.frames import CameraMount
 from gprbot.fusion.so3 import log_so3, quat_to_matrix, yaw_of
+from gprbot.geometry import CameraMount
 from gprbot.sim.camera import CameraModel, FloorCamera
 from gprbot.sim.encoders import simulate_encoders
 from gprbot.sim.floor_texture import FloorSpec

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from gprbot.fusion.frames import CameraMount, d435i_intrinsics
 from gprbot.fusion.so3 import exp_so3, log_so3, quat_to_matrix
 from gprbot.fusion.vo import RgbdOdometry
 from gprbot.fusion.vo_geometry import VoConfig, detect_keyframe, estimate_motion
+from gprbot.geometry import CameraMount, d435i_intrinsics
 from gprbot.messages import decode, encode
 from gprbot.sim.camera import FloorCamera
 from gprbot.sim.floor_texture import FloorSpec

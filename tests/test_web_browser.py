@@ -16,8 +16,8 @@ from typing import Any
 
 import pytest
 
+from gprbot.apps.offline_demo import run_demo
 from gprbot.config import load_config
-from gprbot.demo import run_demo
 from gprbot.shell.auth import create_token_file
 from gprbot.sim.scene import load_scene
 from tests.web_support import ARTIFACTS, DaemonThread, browser_missing, chromium, wait_for, web_config

@@ -16,8 +16,8 @@ from gprbot.config import FusionConfig, MotorsConfig
 from gprbot.fusion.fuser import PoseFuser, SensorMessage
 from gprbot.messages import ImuSample, WheelSpeeds
 from gprbot.motion.kinematics import kiwi_matrix
-from gprbot.robot.sim_robot import WHEEL_RADIUS_ERROR
 from gprbot.sim.imu import ImuModel
+from gprbot.simulated.robot import WHEEL_RADIUS_ERROR
 
 GYRO_BIAS = np.array([0.003, -0.002, 0.004])  # rad/s: a D435i's turn-on bias, removed by the at-rest mean
 REST_S = 10.0

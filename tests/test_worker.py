@@ -16,10 +16,11 @@ from gprbot.config import Config, load_config, to_dict
 from gprbot.errors import GprbotError
 from gprbot.gpr.bscan import BScan
 from gprbot.gpr.preprocess import preprocess
-from gprbot.infer.pipeline import SurveyResult, interpret_line, reconstruct_survey
+from gprbot.infer.pipeline import interpret_line, reconstruct_survey
 from gprbot.infer.worker import InferenceWorker
+from gprbot.reconstruct.survey_result import SurveyResult
 from gprbot.sim.scene import load_scene
-from gprbot.sim.survey_sim import simulate_survey
+from gprbot.simulated.survey import simulate_survey
 from gprbot.survey import assemble_bscan, line_windows, split_by_line
 
 
@@ -32,7 +33,7 @@ def survey() -> tuple[Config, dict[int, BScan], SurveyResult]:
     by_line = split_by_line(sim.traces, line_windows(sim.plan))
     lever = cfg.mount.antenna_lever_arm_m
     bscans = {line: assemble_bscan(tr, sim.trajectory.estimated_poses, lever) for line, tr in by_line.items()}
-    return cfg, bscans, reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
+    return cfg, bscans, reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.reconstruction_seed))
 
 
 def assert_same_survey(got: SurveyResult, want: SurveyResult) -> None:

@@ -9,7 +9,7 @@ the hyperbolas as on site (eps_r unknown), each line is interpreted by the class
 the slices are registered at the recorded positions and completed by the geometric fit or GPRNet — the
 four chains the config can select. Reported per chain: the dense cloud's CD2×10³ / CD1×10² / F@1% in
 the test sample's unit cube (training.pointcloud_data's normalisation, so all chains share one scale),
-and the pipes of pipes.json against the truth (gprbot.evaluation: found, missed, extra; horizontal,
+and the pipes of pipes.json against the truth (gprbot.simulated.evaluation: found, missed, extra; horizontal,
 depth and diameter errors of the found ones).
 """
 
@@ -27,15 +27,16 @@ import numpy as np
 
 from gprbot.config import Config, load_config
 from gprbot.errors import GprbotError
-from gprbot.evaluation import compare_to_truth
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.infer.completion import Reconstruction, geometric_completion
 from gprbot.infer.gprnet import gprnet_reconstruction
 from gprbot.infer.pipeline import gprnet_completion, interpret_line, survey_velocity
-from gprbot.infer.register import resample_cloud
+from gprbot.motion.planner import survey_region as planned_region
 from gprbot.progress import track
+from gprbot.reconstruct.completion import Reconstruction, geometric_completion
+from gprbot.reconstruct.register import resample_cloud
 from gprbot.sim.scene import Scene
+from gprbot.simulated.evaluation import compare_to_truth
 from training.chamfer import cloud_metrics
 from training.migration_data import simulate_line
 from training.pointcloud_data import load_split
@@ -59,8 +60,7 @@ def scene_config(base: Config, scene: Scene, spec: SurveySpec, method: str, comp
 def survey_region(spec: SurveySpec) -> tuple[float, float, float, float]:
     """The surveyed rectangle (xmin, xmax, ymin, ymax): lines ± half a spacing, as the dataset's truth."""
     half = 0.5 * spec.spacing_m
-    x0 = spec.start_xy[0]
-    return x0, x0 + spec.length_m, spec.line_y(0) - half, spec.line_y(spec.lines - 1) + half
+    return planned_region(spec.start_xy, spec.length_m, spec.lines, spec.spacing_m, across_margin_m=half)
 
 
 def pipe_scores(recon: Reconstruction, scene: Scene, region: tuple[float, float, float, float]) -> dict[str, Any]:
@@ -164,7 +164,7 @@ def markdown(result: dict[str, Any], command: str) -> str:
         f"# End to end on {result['scenes']} held-out test scenes (simulated B-scans → pipes.json + dense cloud)",
         "", "Velocity estimated from the hyperbolas (eps_r unknown): median |error| "
         f"{result['median_abs_velocity_err_pct']:.1f} %. Dense cloud in the test sample's unit cube (CD2×10³, "
-        "CD1×10², F@1%); pipes of pipes.json matched to the truth within 15 cm (gprbot.evaluation). "
+        "CD1×10², F@1%); pipes of pipes.json matched to the truth within 15 cm (gprbot.simulated.evaluation). "
         f"Chains that refused a scene: {len(result['failures'])}.", "",
         "| chain | CD2×10³ | median CD2×10³ | CD1×10² | F@1% | pipes found | precision | horiz cm | depth cm "
         "| |diam| % |",

@@ -28,9 +28,10 @@ import torch
 from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
-from gprbot.infer.completion import geometric_completion
 from gprbot.infer.gprnet import INPUT_NAME
+from gprbot.motion.planner import survey_region
 from gprbot.progress import track
+from gprbot.reconstruct.completion import geometric_completion
 from gprbot.sim.truth import sample_pipe_interiors
 from training.chamfer import cloud_metrics
 from training.pointcloud_data import CACHE_DIR, DENSE_POINTS, load_split, survey_slices
@@ -98,9 +99,8 @@ def truth_floor(data: dict[str, Any]) -> Callable[[int], Cloud]:
     def predict(i: int) -> Cloud:
         seed = int(data["seed"][i])
         scene, spec = scene_for_seed(seed)
-        half = 0.5 * spec.spacing_m
-        region = (spec.start_xy[0], spec.start_xy[0] + spec.length_m, spec.line_y(0) - half,
-                  spec.line_y(spec.lines - 1) + half)
+        region = survey_region(spec.start_xy, spec.length_m, spec.lines, spec.spacing_m,
+                               across_margin_m=0.5 * spec.spacing_m)
         points, _ = sample_pipe_interiors(scene, DENSE_POINTS, np.random.default_rng([seed, 99]), region)
         return np.asarray((points - data["centre"][i]) / data["scale"][i], dtype=np.float32)
 

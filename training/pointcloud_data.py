@@ -24,8 +24,9 @@ from scipy import ndimage
 
 from gprbot.errors import ConfigError
 from gprbot.infer.gprnet import normalisation
-from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
+from gprbot.motion.planner import survey_region
 from gprbot.progress import track
+from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 from gprbot.sim.truth import cross_section_mask, sample_pipe_interiors
 from training.random_scenes import CASES, line_antenna_xy, recorded_positions, scene_for_seed, split_seeds
 
@@ -83,8 +84,7 @@ def survey_slices(seed: int, *, degrade: bool = True) -> tuple[list[SliceCloud],
             mask = degrade_mask(mask, rng)
         slices.append(register_slice(line, mask, z * depth_scale, recorded_positions(true_xy, spec, rng)))
     half = 0.5 * spec.spacing_m
-    x0 = spec.start_xy[0]
-    region = (x0, x0 + spec.length_m, spec.line_y(0) - half, spec.line_y(spec.lines - 1) + half)
+    region = survey_region(spec.start_xy, spec.length_m, spec.lines, spec.spacing_m, across_margin_m=half)
     return slices, region
 
 

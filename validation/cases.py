@@ -65,7 +65,7 @@ def _file_loader(path: Path, spacing_m: float | None = None,
                  frequency_mhz: float | None = None) -> Callable[[], tuple[BScan, GprConfig]]:
     """Read any file exactly as `gprbot interpret FILE [--spacing] [--frequency]` does."""
     def load() -> tuple[BScan, GprConfig]:
-        from gprbot.interpret_file import file_bscan, gpr_config_for
+        from gprbot.apps.interpret_file import file_bscan, gpr_config_for
 
         bscan, rg = file_bscan(path, 0, spacing_m)
         return bscan, gpr_config_for(rg, GprConfig(), frequency_mhz)

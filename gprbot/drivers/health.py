@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+SLOW_FRACTION = 0.5  # a stream below half its registered rate is reported SLOW by `status`
+
 
 @dataclass(frozen=True)
 class DriverHealth:
@@ -17,6 +19,11 @@ class DriverHealth:
     errors: int
     last_error: str | None
     last_message_t: float | None
+
+    def slow_against(self, expected_hz: float | None) -> bool:
+        """Whether a connected, flowing stream runs under SLOW_FRACTION of its expected rate."""
+        return (expected_hz is not None and self.connected and self.last_message_t is not None
+                and self.rate_hz < SLOW_FRACTION * expected_hz)
 
 
 @dataclass

@@ -14,9 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from gprbot.config import MotorsConfig
-from gprbot.fusion.frames import VoMeasurement
 from gprbot.fusion.so3 import FloatArray, exp_so3, gravity_aligned, log_so3, matrix_to_quat, quat_to_matrix
-from gprbot.messages import ImuSample, Pose, WheelSpeeds
+from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
 from gprbot.motion.kinematics import KiwiKinematics, WheelOdometry
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])

@@ -23,8 +23,8 @@ from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
 from gprbot.config import FusionConfig
-from gprbot.fusion.frames import VoMeasurement
 from gprbot.fusion.so3 import FloatArray, exp_so3, gravity_aligned, log_so3, orthonormalize, quat_to_matrix, skew
+from gprbot.messages import VoMeasurement
 from gprbot.motion.kinematics import KiwiKinematics, kiwi_matrix
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])

@@ -26,10 +26,9 @@ from numpy.typing import NDArray
 from gprbot.config import FusionConfig, MotorsConfig
 from gprbot.errors import GprbotError
 from gprbot.fusion.ekf import ErrorStateEkf
-from gprbot.fusion.frames import VoMeasurement
 from gprbot.fusion.interpolate import interpolate_poses
 from gprbot.fusion.so3 import matrix_to_quat, yaw_of
-from gprbot.messages import ImuSample, Pose, WheelSpeeds
+from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
 from gprbot.motion.kinematics import KiwiKinematics
 
 SensorMessage = ImuSample | WheelSpeeds | VoMeasurement

@@ -15,7 +15,6 @@ import dataclasses
 import io
 import zipfile
 from collections.abc import Iterable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -23,25 +22,12 @@ import numpy as np
 from gprbot.config import FusionConfig, MotorsConfig
 from gprbot.errors import GprbotError
 from gprbot.fusion.fuser import FusionStats, PoseFuser, SensorMessage
-from gprbot.messages import decode, encode, register_message
+from gprbot.messages import FusionSnapshot, decode, encode
 
 _EKF_ARRAYS = ("p", "v", "R", "gyro_bias", "accel_bias", "wheel_scale", "clone_p", "clone_R", "gyro", "accel",
                "_sum_gyro", "_sum_accel")
 _EKF_SCALARS = ("t", "clone_t", "floor_z", "_held_since")
 _FUSER_SCALARS = ("_newest", "_newest_imu", "_released", "_init_start", "_next_tick")
-
-
-@register_message
-@dataclass(frozen=True)
-class FusionSnapshot:
-    """The filter at host time t: numbers (npz bytes), scalars, the reorder buffer and the not-yet-filtered."""
-
-    t: float
-    arrays: bytes
-    scalars: dict[str, float] = field(default_factory=dict)
-    counters: dict[str, int] = field(default_factory=dict)
-    heap: list[list[Any]] = field(default_factory=list)  # [key, priority, seq, encoded message]
-    queued: list[bytes] = field(default_factory=list)  # submitted to the fusion task, not yet pushed
 
 
 def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = ()) -> FusionSnapshot:

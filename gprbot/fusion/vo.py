@@ -14,7 +14,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.fusion.frames import CameraMount, RgbdFrame, VoMeasurement
 from gprbot.fusion.so3 import exp_so3, log_so3, matrix_to_quat
 from gprbot.fusion.vo_geometry import (
     FloatArray,
@@ -24,6 +23,8 @@ from gprbot.fusion.vo_geometry import (
     detect_keyframe,
     estimate_motion,
 )
+from gprbot.geometry import CameraMount
+from gprbot.messages import RgbdFrame, VoMeasurement
 
 
 class RgbdOdometry:

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.fusion.frames import CameraIntrinsics
+from gprbot.messages import CameraIntrinsics
 
 FloatArray = NDArray[np.float64]
 

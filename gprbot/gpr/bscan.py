@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from gprbot.errors import InterpretationError
+from gprbot.gpr.wavelet import ricker
 
 FloatArray = NDArray[np.float64]
 
@@ -171,12 +172,6 @@ def bscan_from_dzt(dzt: Any, channel: int = 0) -> BScan:
     position_ns = float(getattr(header, "position_ns", 0.0) or 0.0)
     t0 = position_ns if position_ns > 0.0 else math.nan
     return BScan(data=data, dt_ns=float(header.dt_ns), t0_ns=t0, positions=positions, times=np.zeros(n))
-
-
-def ricker(t_ns: FloatArray, centre_frequency_mhz: float) -> FloatArray:
-    """Ricker wavelet of peak frequency f, centred on t = 0 (peak value 1)."""
-    a = (math.pi * centre_frequency_mhz * 1e-3 * np.asarray(t_ns)) ** 2
-    return np.asarray((1.0 - 2.0 * a) * np.exp(-a))
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.config import GprConfig, InterpretationConfig
-from gprbot.gpr.bscan import BScan, CrossSection, Detection, check_bscan, ricker
+from gprbot.gpr.bscan import BScan, CrossSection, Detection, check_bscan
 from gprbot.gpr.cylinder import DEFAULT_SIN_STD, MIN_SIN_CROSS, CylinderFit, fit_cylinder
 from gprbot.gpr.hyperbola import MAX_RADIUS_M, HyperbolaPicks, hyperbolas_of_line, without_interference
 from gprbot.gpr.line_model import LineData, matched_filter, prepare_line
@@ -34,6 +34,7 @@ from gprbot.gpr.velocity import (
     VelocityEstimate,
     estimate_velocity,
 )
+from gprbot.gpr.wavelet import ricker
 
 __all__ = [
     "CrossSection", "CrossingHint", "CylinderFit", "Detection", "SurveyInterpretation", "VelocityEstimate",

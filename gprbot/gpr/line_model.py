@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from scipy import ndimage, signal
 
 from gprbot.config import GprConfig
-from gprbot.gpr.bscan import BScan, check_bscan, grid_spacing_m, ricker
+from gprbot.gpr.bscan import BScan, check_bscan, grid_spacing_m
 from gprbot.gpr.migration import diffraction_times, resample_uniform
 from gprbot.gpr.preprocess import (
     BACKGROUND,
@@ -29,6 +29,7 @@ from gprbot.gpr.preprocess import (
     remove_gain,
 )
 from gprbot.gpr.traveltime import two_way_time
+from gprbot.gpr.wavelet import ricker
 
 FloatArray = NDArray[np.float64]
 FloatLike = float | FloatArray

@@ -21,10 +21,10 @@ from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
 from gprbot.errors import InterpretationError, ModelError
-from gprbot.infer.completion import PipeModel, Reconstruction, fit_pipes
+from gprbot.geometry import distance_to_polyline
 from gprbot.infer.onnx_model import OnnxModel
-from gprbot.infer.polyline import distance_to_polyline
-from gprbot.infer.register import SliceCloud, resample_cloud
+from gprbot.reconstruct.completion import PipeModel, Reconstruction, fit_pipes
+from gprbot.reconstruct.register import SliceCloud, resample_cloud
 
 INPUT_NAME = "sparse_points"  # the names tools/export_onnx.py gives completion models
 OUTPUT_NAME = "dense_points"

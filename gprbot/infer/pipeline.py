@@ -9,45 +9,23 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
-from numpy.typing import NDArray
 
 from gprbot.config import Config, model_path
 from gprbot.errors import InterpretationError
 from gprbot.gpr.bscan import BScan, Detection
 from gprbot.gpr.chain.run import interpret
-from gprbot.gpr.interpret import CrossSection, estimate_velocity, interpret_bscan
+from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import CrossingHint
-from gprbot.infer.completion import Reconstruction, geometric_completion
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.migrationnet import MigrationNetInterpreter
-from gprbot.infer.register import SliceCloud, register_slice, resample_cloud
-
-
-@dataclass(frozen=True)
-class LineResult:
-    """One survey line: its processed B-scan, its cross-section and the slice registered in 3D."""
-
-    line: int
-    bscan: BScan
-    section: CrossSection
-    slice: SliceCloud
-
-
-@dataclass(frozen=True)
-class SurveyResult:
-    """The interpretation and reconstruction of a whole survey."""
-
-    lines: tuple[LineResult, ...]
-    velocity_m_per_ns: float
-    velocity_estimated: bool
-    sparse: NDArray[np.float64]
-    reconstruction: Reconstruction
-    timings_s: dict[str, float] = field(default_factory=dict)
+from gprbot.reconstruct.completion import geometric_completion
+from gprbot.reconstruct.register import register_slice, resample_cloud
+from gprbot.reconstruct.survey_result import LineResult, SurveyResult
 
 
 def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool, tuple[CrossingHint, ...]]:

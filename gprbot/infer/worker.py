@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from multiprocessing.process import BaseProcess
 
     from gprbot.gpr.bscan import BScan
-    from gprbot.infer.pipeline import SurveyResult
+    from gprbot.reconstruct.survey_result import SurveyResult
 
 _POLL_S = 0.05
 
@@ -101,7 +101,7 @@ class InferenceWorker:
         return dataclasses.replace(result, timings_s=dict(self._last_timings))
 
     async def finish_survey(self, bscans: dict[int, BScan]) -> SurveyResult:
-        """The whole survey through `reconstruct_survey` (one velocity from all lines), seeded by sim.seed."""
+        """The whole survey through `reconstruct_survey` (one velocity from all lines), seeded by the config."""
         reply, timings = await self._job("finish_survey", (bscans,), f"the survey ({len(bscans)} lines)")
         result: SurveyResult = reply
         self._last_timings = {**result.timings_s, **timings}

@@ -21,8 +21,8 @@ if TYPE_CHECKING:
 
     from gprbot.gpr.bscan import BScan
     from gprbot.gpr.interpret import CrossSection
-    from gprbot.infer.pipeline import SurveyResult
-    from gprbot.infer.register import SliceCloud
+    from gprbot.reconstruct.register import SliceCloud
+    from gprbot.reconstruct.survey_result import SurveyResult
 
 _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 
@@ -125,7 +125,7 @@ def _finish_survey_job(cfg: Config, bscans: dict[int, BScan]) -> SurveyResult:
 
     from gprbot.infer.pipeline import reconstruct_survey
 
-    return reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.sim.seed))
+    return reconstruct_survey(bscans, cfg, np.random.default_rng(cfg.reconstruction_seed))
 
 
 def _write_outputs_job(cfg: Config, out_dir: str, result: SurveyResult, meta: dict[str, Any],
@@ -135,7 +135,7 @@ def _write_outputs_job(cfg: Config, out_dir: str, result: SurveyResult, meta: di
     # event loop runs the 50 Hz motor control.
     from pathlib import Path
 
-    from gprbot.infer.run_files import write_survey_outputs
+    from gprbot.outputs.run_dir import write_survey_outputs
 
     return [str(p) for p in write_survey_outputs(Path(out_dir), result, meta, extent, truth_axes,
                                                  raw_lines=raw_lines)]

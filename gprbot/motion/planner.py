@@ -76,6 +76,14 @@ class SurveyPlan:
         return np.array([self.segments[i].velocity for i in idx]).reshape(-1, 2)
 
 
+def survey_region(start_xy: tuple[float, float], length_m: float, lines: int, spacing_m: float,
+                  along_margin_m: float = 0.0, across_margin_m: float = 0.0) -> tuple[float, float, float, float]:
+    """The area the survey lines cover, (xmin, xmax, ymin, ymax) in the site frame, widened by the margins."""
+    x0, y0 = start_xy
+    return (x0 - along_margin_m, x0 + length_m + along_margin_m,
+            y0 - across_margin_m, y0 + (lines - 1) * spacing_m + across_margin_m)
+
+
 def plan_survey(cfg: SurveyConfig) -> SurveyPlan:
     """Boustrophedon plan: line 0 forward (+x), line 1 backward, ..., stepping +y between lines."""
     if cfg.lines < 1:

@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 from gprbot.config import Config
 from gprbot.fusion.fuser import PoseFuser, SensorMessage
-from gprbot.fusion.snapshot import FusionSnapshot, take_snapshot
-from gprbot.messages import ImuSample, Pose
+from gprbot.fusion.snapshot import take_snapshot
+from gprbot.messages import FusionSnapshot, ImuSample, Pose
 
 MAX_BATCH = 20  # messages pushed into the filter before the task lets the rest of the loop run
 

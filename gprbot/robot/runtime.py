@@ -12,40 +12,47 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from gprbot.config import Config
-from gprbot.daemon import TaskSpec
+from gprbot.config import CONTROL_PERIOD_S, SIMULATED, Config
+from gprbot.drivers.contract import Driver
 from gprbot.drivers.gpr.driver import GprDriver
 from gprbot.drivers.motors.driver import MotorDriver
 from gprbot.drivers.realsense.driver import RealsenseDriver
 from gprbot.errors import ConfigError, DriverError
-from gprbot.fusion.frames import CameraMount, VoMeasurement
+from gprbot.geometry import CameraMount
 from gprbot.infer.worker import InferenceWorker
-from gprbot.messages import ImuSample, WheelSpeeds
+from gprbot.messages import ImuSample, VoMeasurement, WheelSpeeds
 from gprbot.motion.heading import HeadingHoldDrive, HeadingHoldGains
 from gprbot.motion.jog import JogController
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
-from gprbot.robot.sim_robot import SimRobot, is_simulated, start_pose
 from gprbot.robot.survey_runner import SurveyRunner
 from gprbot.robot.vo_task import VoTask
 from gprbot.shell.handler import EventBus
 from gprbot.shell.server import SerialShell, ShellServer
+from gprbot.supervisor import Supervisor, TaskSpec
+from gprbot.survey import start_pose
 
 if TYPE_CHECKING:
-    from gprbot.daemon import Supervisor
-    from gprbot.web.server import WebConsole
+    from gprbot.simulated.robot import SimRobot
 
 log = logging.getLogger(__name__)
-CONTROL_PERIOD_S = 0.02  # the motion loop: 50 Hz
-ENCODER_PERIOD_S = 0.02
-DEFAULT_SHELL_PORT = 7878
 ESTOP_REPEAT_S = 0.5  # while latched, a repeated e-stop re-sends the stop at most this often
+
+
+class ConsoleInfo(Protocol):
+    """What `status` shows of a front end the daemon runs over this runtime (the web console)."""
+
+    @property
+    def url(self) -> str: ...
+
+    @property
+    def browser_count(self) -> int: ...
 
 
 class RobotRuntime:
@@ -57,10 +64,13 @@ class RobotRuntime:
         self.cfg = cfg
         self.clock = clock
         self.sim: SimRobot | None = None
-        if is_simulated(cfg):
-            if not (cfg.motors.port == "sim" and cfg.gpr_device.host == "sim" and cfg.realsense.source == "sim"):
-                raise ConfigError("mixing simulated and real devices is not supported: set motors.port, "
-                                  "gpr_device.host and realsense.source all to 'sim', or none of them")
+        if cfg.simulated:
+            if not cfg.all_simulated:
+                raise ConfigError(f"mixing simulated and real devices is not supported: set motors.port, "
+                                  f"gpr_device.host and realsense.source all to '{SIMULATED}', or none of them")
+            # Imported only here: on the robot the runtime never loads the simulated world.
+            from gprbot.simulated.robot import SimRobot
+
             self.sim = SimRobot(cfg, clock=clock)
         self.fusion = FusionState(cfg, start_pose(cfg))
         gains = HeadingHoldGains(cfg.motion.heading_kp_per_s, cfg.motion.heading_ki_per_s2,
@@ -77,10 +87,10 @@ class RobotRuntime:
                                    run_meta=self._run_meta, truth_axes=truth, links_fault=self._links_fault,
                                    may_resume=lambda: not (self.estopped or self.stopping))
         self.shell_host = shell_host
-        self.shell_port = DEFAULT_SHELL_PORT if shell_port is None else shell_port
+        self.shell_port = cfg.shell.port if shell_port is None else shell_port
         self.token_file = token_file
         self.shell: ShellServer | None = None
-        self.web: WebConsole | None = None
+        self.web: ConsoleInfo | None = None  # set by the web console task while it listens
         self.web_error: str | None = None  # why the web console is not listening, if it is not
         self.motors: MotorDriver | None = None
         self.gpr: GprDriver | None = None
@@ -127,8 +137,8 @@ class RobotRuntime:
         """Stop the drivers, the worker and the emulators (best effort, each independently)."""
         steps: list[tuple[str, Callable[[], Awaitable[None]] | None]] = [
             ("motors", self.motors.close if self.motors is not None else None),
-            ("gpr", self.gpr.stop if self.gpr is not None else None),
-            ("realsense", self.realsense.stop if self.realsense is not None else None),
+            ("gpr", self.gpr.close if self.gpr is not None else None),
+            ("realsense", self.realsense.close if self.realsense is not None else None),
             ("vo", self._stop_vo),
             ("worker", self.worker.close if self.worker is not None else None),
             ("sim", self.sim.close if self.sim is not None else None),
@@ -155,8 +165,9 @@ class RobotRuntime:
         await self.survey.shutdown()
         self.emit("daemon stopping")
 
-    def task_table(self) -> list[TaskSpec]:
-        """The daemon's declared tasks: name, coroutine, watchdog deadline, restart policy."""
+    def task_table(self, frontends: Sequence[TaskSpec] = ()) -> list[TaskSpec]:
+        """The daemon's declared tasks: name, coroutine, watchdog deadline, restart policy; `frontends`
+        (the web console, built by the daemon) run after the TCP shell."""
         tasks = [
             TaskSpec("fusion", self.fusion.run, watchdog_s=2.0, restart="always"),
             TaskSpec("motors.encoders", self._run_encoders, watchdog_s=1.0, restart="always"),
@@ -166,8 +177,7 @@ class RobotRuntime:
             TaskSpec("recorder", self.recorder.run, watchdog_s=5.0, restart="always"),
             TaskSpec("shell.tcp", self._run_shell, watchdog_s=None, restart="always"),
         ]
-        if self.cfg.web.enabled:
-            tasks.append(TaskSpec("web", self._run_web, watchdog_s=5.0, restart="always", critical=False))
+        tasks.extend(frontends)
         if self.cfg.shell.serial_console:
             tasks.append(TaskSpec("shell.serial", self._run_serial_shell, watchdog_s=None, restart="always"))
         tasks.insert(0, TaskSpec("realsense", self._run_realsense, watchdog_s=None, restart="always"))
@@ -234,7 +244,7 @@ class RobotRuntime:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(0.25):
                         await motors.wait_connected()
-            next_t = max(next_t + ENCODER_PERIOD_S, self.clock())
+            next_t = max(next_t + CONTROL_PERIOD_S, self.clock())
             await asyncio.sleep(next_t - self.clock())
 
     async def _run_gpr(self, beat: Callable[[], None]) -> None:
@@ -287,7 +297,7 @@ class RobotRuntime:
 
     async def start_shell(self) -> None:
         """Load the token and bind the TCP shell (ConfigError if either is impossible)."""
-        from gprbot.robot.handler import RobotHandler
+        from gprbot.robot.robot_commands import RobotHandler
 
         shell = self.cfg.shell
         server = ShellServer(RobotHandler(self), host=self.shell_host, port=self.shell_port,
@@ -304,13 +314,8 @@ class RobotRuntime:
         beat()
         await asyncio.Event().wait()
 
-    async def _run_web(self, beat: Callable[[], None]) -> None:
-        from gprbot.web.server import serve_console
-
-        await serve_console(self, beat, token_file=self.token_file)
-
     async def _run_serial_shell(self, beat: Callable[[], None]) -> None:
-        from gprbot.robot.handler import RobotHandler
+        from gprbot.robot.robot_commands import RobotHandler
 
         beat()
         assert self.cfg.shell.serial_console is not None
@@ -370,6 +375,11 @@ class RobotRuntime:
         run = self.survey.current
         survey = f"survey {run.state} line {run.line + 1}/{run.lines}" if run is not None else "no survey"
         return f"{'ESTOP' if self.estopped else 'ok'}; {survey}"
+
+    def drivers(self) -> list[Driver]:
+        """The started device drivers, all under the one driver contract."""
+        started: list[Driver | None] = [self.motors, self.gpr, self.realsense]
+        return [d for d in started if d is not None]
 
     def _links_fault(self) -> str | None:
         """Why the survey cannot go on now (a motor or GPR link down), or None."""

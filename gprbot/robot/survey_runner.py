@@ -24,19 +24,20 @@ from numpy.typing import NDArray
 from gprbot.config import Config, SurveyConfig, to_dict
 from gprbot.errors import GprbotError
 from gprbot.gpr.bscan import BScan
-from gprbot.infer.pipeline import SurveyResult, reconstruct_survey
-from gprbot.infer.run_files import write_survey_outputs
+from gprbot.infer.pipeline import reconstruct_survey
 from gprbot.infer.worker import InferenceWorker
 from gprbot.infer.worker_process import LineJobResult
-from gprbot.messages import Trace
-from gprbot.motion.planner import Segment, SurveyPlan, plan_survey
+from gprbot.messages import SurveyEvent, Trace
+from gprbot.motion.planner import Segment, SurveyPlan, plan_survey, survey_region
+from gprbot.outputs.report_html import write_report_safely
+from gprbot.outputs.run_dir import write_survey_outputs
+from gprbot.reconstruct.survey_result import SurveyResult
 from gprbot.retention import prune_runs
 from gprbot.robot.fusion_state import FusionState
 from gprbot.robot.recorder import Recorder
 from gprbot.robot.tracking import tracking_velocity
-from gprbot.runlog import SurveyEvent, make_run_header
+from gprbot.runlog import make_run_header
 from gprbot.survey import assemble_bscan
-from gprbot.web.report import write_report_safely
 
 log = logging.getLogger(__name__)
 STEP_S = 0.02  # how often the runner re-checks pause/abort while a segment runs
@@ -264,9 +265,8 @@ class SurveyRunner:
         the results)."""
         meta = {"run": run.name, "frame": "site: x forward along the survey lines, y left, z up; metres",
                 "source": "gprbot run", "config": to_dict(self.cfg), **self.run_meta()}
-        x0, y0 = run.survey.start_xy_m
-        extent = (x0 - 0.2, x0 + run.survey.length_m + 0.2, y0 - 0.2,
-                  y0 + (run.survey.lines - 1) * run.survey.spacing_m + 0.2)
+        s = run.survey
+        extent = survey_region(s.start_xy_m, s.length_m, s.lines, s.spacing_m, 0.2, 0.2)
         if self.worker is not None:  # the worker process: matplotlib holds the GIL for seconds per picture
             writing: Awaitable[Any] = self.worker.write_outputs(run.run_dir, result, meta, extent, self.truth_axes,
                                                                 run.bscans)
@@ -342,7 +342,7 @@ class SurveyRunner:
         if self.worker is not None:
             return await self.worker.finish_survey(dict(bscans))
         return await asyncio.to_thread(reconstruct_survey, dict(bscans), self.cfg,
-                                       np.random.default_rng(self.cfg.sim.seed))
+                                       np.random.default_rng(self.cfg.reconstruction_seed))
 
     async def _wait_fusion(self, timeout_s: float = 10.0) -> None:
         deadline = self.clock() + timeout_s

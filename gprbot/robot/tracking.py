@@ -7,24 +7,14 @@ reorder window, so it is compared with where the plan was at the pose's own time
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.geometry import antenna_xy
 from gprbot.messages import Pose
 from gprbot.motion.planner import Segment
 
 MAX_POSE_AGE_S = 0.5  # an older pose (filter stalled) gives no correction: plain planned velocity
-
-
-def antenna_xy(pose: Pose, lever_arm: tuple[float, float, float]) -> NDArray[np.float64]:
-    """The antenna midpoint (x, y) in the site frame for a base pose (yaw from its quaternion)."""
-    qx, qy, qz, qw = (float(v) for v in pose.orientation)
-    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([pose.position[0] + c * lever_arm[0] - s * lever_arm[1],
-                     pose.position[1] + s * lever_arm[0] + c * lever_arm[1]])
 
 
 def tracking_velocity(segment: Segment, elapsed_s: float, now: float, pose: Pose | None,

@@ -21,10 +21,10 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from gprbot.drivers.realsense.driver import RawRgbdFrame
-from gprbot.fusion.frames import CameraMount, RgbdFrame, VoHealth, VoMeasurement
 from gprbot.fusion.vo import RgbdOdometry
 from gprbot.fusion.vo_geometry import VoConfig
+from gprbot.geometry import CameraMount
+from gprbot.messages import RawRgbdFrame, RgbdFrame, VoHealth, VoMeasurement
 
 log = logging.getLogger(__name__)
 WINDOW = 60  # frames over which rate and latency are reported (2 s at 30 fps)

@@ -19,10 +19,11 @@ from pathlib import Path, PurePosixPath
 from types import TracebackType
 from typing import TypeVar
 
+from gprbot.config import DEFAULT_SHELL_PORT
 from gprbot.errors import GprbotError, ProtocolError
 from gprbot.shell.protocol import PayloadChunk, ReplyReader, ServerEvent, ServerReply
 
-DEFAULT_PORT = 7878
+DEFAULT_PORT = DEFAULT_SHELL_PORT
 _Item = TypeVar("_Item", ServerReply, PayloadChunk)
 REPLY_TIMEOUT_S = 30.0
 MAX_PULL_BYTES = 64 << 30  # 64 GiB: far above any run file (log segments are 64 MiB), far below 15 digits
@@ -79,7 +80,8 @@ class ShellConnection:
     async def open(self, timeout_s: float = 10.0) -> None:
         """Connect (GprbotError if the robot cannot be reached)."""
         try:
-            stream, self._writer = await asyncio.wait_for(asyncio.open_connection(self.host, self.port), timeout_s)
+            async with asyncio.timeout(timeout_s):
+                stream, self._writer = await asyncio.open_connection(self.host, self.port)
         except (OSError, TimeoutError) as exc:
             raise GprbotError(f"cannot connect to {self.host}:{self.port}: {exc}; is gprbot running there?") from exc
         self._task = asyncio.create_task(self._read_loop(stream))
@@ -158,7 +160,8 @@ class ShellConnection:
 
     async def _next(self, queue: asyncio.Queue[_Item | BaseException], timeout_s: float) -> _Item:
         try:
-            item = await asyncio.wait_for(queue.get(), timeout_s)
+            async with asyncio.timeout(timeout_s):
+                item = await queue.get()
         except TimeoutError:
             raise GprbotError(f"no answer from {self.host}:{self.port} within {timeout_s:g} s") from None
         if isinstance(item, BaseException):

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
 
+from gprbot.config import DEFAULT_SHELL_PORT
 from gprbot.errors import GprbotError
 from gprbot.shell.auth import load_token
 from gprbot.shell.client import ShellCommandError, ShellConnection, parse_address, pull_run, safe_relative
@@ -29,7 +30,7 @@ except ImportError:  # Windows laptops: no history, otherwise the same
 
 def add_shell_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments of `gprbot shell`."""
-    parser.add_argument("address", metavar="HOST[:PORT]", help="the robot (port 7878 by default)")
+    parser.add_argument("address", metavar="HOST[:PORT]", help=f"the robot (port {DEFAULT_SHELL_PORT} by default)")
     parser.add_argument("--token-file", type=Path, help="file holding the shell token (mode 0600)")
     parser.add_argument("-c", "--command", action="append", metavar="CMD",
                         help="run CMD (repeatable, in order) and exit: 0 if every reply is ok, 1 at the first error")
@@ -37,7 +38,7 @@ def add_shell_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_pull_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments of `gprbot pull`."""
-    parser.add_argument("address", metavar="HOST[:PORT]", help="the robot (port 7878 by default)")
+    parser.add_argument("address", metavar="HOST[:PORT]", help=f"the robot (port {DEFAULT_SHELL_PORT} by default)")
     parser.add_argument("run", help="run name (see `runs` in the shell)")
     parser.add_argument("dir", nargs="?", type=Path, help="where to write the files (default: ./RUN)")
     parser.add_argument("--token-file", type=Path, help="file holding the shell token (mode 0600)")

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import serial
 
+from gprbot.config import DEFAULT_SHELL_PORT
 from gprbot.errors import ConfigError, DriverError
 from gprbot.shell.auth import AuthGuard, load_token
 from gprbot.shell.commands import ErrorCode
@@ -50,7 +51,7 @@ class ShellServer:
         handler: CommandHandler,
         *,
         host: str = "127.0.0.1",
-        port: int = 7878,
+        port: int = DEFAULT_SHELL_PORT,
         token_file: str | Path | None = None,
         max_clients: int = 8,
         max_line: int = 256,

@@ -267,14 +267,16 @@ class Session:
 
     async def _estop(self) -> Reply:
         self._quiet.log(logging.WARNING, f"estop:{self.info.peer}", "shell: estop from %s", self.info.peer)
-        try:
-            return await asyncio.wait_for(self._handler.estop(self.info), self._limits.handler_timeout_s)
+        try:  # not wait_for: on 3.11 it can swallow a cancel, and this is the e-stop
+            async with asyncio.timeout(self._limits.handler_timeout_s):
+                return await self._handler.estop(self.info)
         except Exception as exc:
             log.critical("shell: estop handler failed", exc_info=True)
             return Reply.failure(ErrorCode.INTERNAL, f"estop failed: {exc!r}; use the hardware e-stop")
 
     async def _ask_robot(self, command: RobotCommand) -> Reply:
-        return await asyncio.wait_for(self._handler.handle(command, self.info), self._limits.handler_timeout_s)
+        async with asyncio.timeout(self._limits.handler_timeout_s):
+            return await self._handler.handle(command, self.info)
 
     async def _guarded(self, work: Awaitable[Reply | runfiles.OpenedFile]) -> Reply | runfiles.OpenedFile:
         """Await a command's work; every failure becomes an error reply (the session goes on)."""

@@ -17,7 +17,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.fusion.frames import CameraMount, RgbdFrame, d435i_intrinsics
+from gprbot.geometry import CameraMount, d435i_intrinsics
+from gprbot.messages import RgbdFrame
 from gprbot.sim.floor_texture import FloorSpec, FloorTexture
 from gprbot.sim.motion_truth import GroundTruth
 

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from gprbot.config import GprConfig
 from gprbot.gpr.traveltime import C_M_PER_NS, two_way_time, velocity_from_eps
+from gprbot.gpr.wavelet import ricker
 from gprbot.sim.reflectors import (
     DIRECT_WAVE_MV,
     GROUND_WAVE_MV,
@@ -35,12 +36,6 @@ FloatArray = NDArray[np.float64]
 # The Ricker wavelet is below 1e-9 of its peak beyond 1.5 periods from its centre.
 _WAVELET_HALF_WIDTH_PERIODS = 1.5
 _MIN_SURFACE_PATH_M = 0.3  # near field: the surface echo of a ground-coupled antenna is a fraction of the direct wave
-
-
-def ricker(t_ns: NDArray[np.float64], centre_frequency_mhz: float) -> NDArray[np.float64]:
-    """Ricker (Mexican-hat) wavelet with peak frequency centre_frequency_mhz, peak 1 at t = 0 ns."""
-    a = (math.pi * centre_frequency_mhz * 1e-3 * np.asarray(t_ns, dtype=np.float64)) ** 2
-    return np.asarray((1.0 - 2.0 * a) * np.exp(-a))
 
 
 def simulate_bscan(

@@ -14,7 +14,8 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
-from gprbot.config import FusionConfig, MotorsConfig, PoseNoiseConfig
+from gprbot.config import PoseNoiseConfig
+from gprbot.geometry import antenna_positions
 from gprbot.messages import Pose
 from gprbot.motion.planner import SurveyPlan
 
@@ -34,9 +35,8 @@ class SimulatedTrajectory:
 
     def true_antenna_xy(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
         """True antenna midpoint (n, 2) at times t (for the forward model)."""
-        pos = np.stack([p.position for p in self.true_poses])
-        rot = Rotation.from_quat(np.stack([p.orientation for p in self.true_poses]))
-        ant = pos + rot.apply(self.lever_arm)
+        arm = (float(self.lever_arm[0]), float(self.lever_arm[1]), float(self.lever_arm[2]))
+        ant = antenna_positions(self.true_poses, arm)
         return np.stack([np.interp(t, self.times, ant[:, k]) for k in range(2)], axis=1)
 
 
@@ -83,32 +83,3 @@ def simulate_trajectory(
     true_poses = tuple(Pose(float(t), true_base[i], true_q[i]) for i, t in enumerate(times))
     est_poses = tuple(Pose(float(t), est_base[i], est_q[i]) for i, t in enumerate(times))
     return SimulatedTrajectory(times, true_poses, est_poses, arm)
-
-
-def fused_trajectory(
-    plan: SurveyPlan, lever_arm: tuple[float, float, float], motors: MotorsConfig, fusion: FusionConfig, seed: int
-) -> SimulatedTrajectory:
-    """The base driving `plan` with real dynamics, and the pose filter's estimate from simulated sensors.
-
-    The estimate comes from the same code the robot runs: simulated BMI055 IMU, slipping wheel encoders
-    and a rendered floor seen by the D435i, through visual odometry and the loosely coupled filter.
-    """
-    # Imported here: the fusion stack renders camera frames and is only needed for this pose source.
-    from gprbot.fusion.fuser import PoseFuser
-    from gprbot.fusion.sim_runs import arrival_order, simulate_run
-    from gprbot.fusion.so3 import yaw_of
-    from gprbot.sim.motion_truth import survey_ground_truth
-
-    truth = survey_ground_truth(plan, (lever_arm[0], lever_arm[1]), seed=seed)
-    run = simulate_run("survey", truth, seed=seed, motors=motors)
-    t0 = np.array([truth.t_start])
-    start = truth.position(t0)[0]
-    start_xyz = (float(start[0]), float(start[1]), float(start[2]))
-    fuser = PoseFuser(fusion, motors, start_xyz, yaw_of(truth.rotation(t0)[0]))
-    estimated: list[Pose] = []
-    for message in arrival_order(run):
-        estimated.extend(fuser.push(message))
-    estimated.extend(fuser.flush())
-    times = np.array([p.t for p in estimated])
-    arm = np.asarray(lever_arm, dtype=np.float64)
-    return SimulatedTrajectory(times, tuple(truth.poses(times)), tuple(estimated), arm)

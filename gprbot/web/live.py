@@ -10,7 +10,6 @@ needs. Amplitudes travel as int16 with one scale per batch; gain and colour are 
 
 from __future__ import annotations
 
-import base64
 import math
 import shutil
 from collections import deque
@@ -19,7 +18,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.geometry import antenna_xy
 from gprbot.messages import Trace
+from gprbot.outputs.run_document import b64
 
 if TYPE_CHECKING:
     from gprbot.robot.runtime import RobotRuntime
@@ -30,11 +31,6 @@ SECTION_MAX_W, SECTION_MAX_H = 320, 160
 MAX_TRACK_POINTS = 200
 MAX_SLICE_POINTS = 400
 Message = dict[str, Any]
-
-
-def b64(array: NDArray[Any]) -> str:
-    """Little-endian bytes of an array, base64 (what the page turns back into a typed array)."""
-    return base64.b64encode(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<")).tobytes()).decode()
 
 
 def decimate_samples(data: NDArray[np.float32], max_samples: int = MAX_SAMPLES) -> tuple[NDArray[np.float32], int]:
@@ -199,12 +195,8 @@ class LiveFeed:
         pose = self.rt.fusion.newest_pose()
         if pose is None or (self._antenna and self._antenna[-1][0] >= pose.t):
             return
-        qx, qy, qz, qw = (float(v) for v in pose.orientation)
-        yaw = math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
-        arm = self.rt.cfg.mount.antenna_lever_arm_m
-        x = float(pose.position[0]) + math.cos(yaw) * arm[0] - math.sin(yaw) * arm[1]
-        y = float(pose.position[1]) + math.sin(yaw) * arm[0] + math.cos(yaw) * arm[1]
-        self._antenna.append((pose.t, x, y))
+        x, y = antenna_xy(pose, self.rt.cfg.mount.antenna_lever_arm_m)
+        self._antenna.append((pose.t, float(x), float(y)))
 
     def _distances(self, line: int, times: NDArray[np.float64]) -> NDArray[np.float64]:
         """Each trace's distance from the line's first trace, from the fused poses (the newest traces,

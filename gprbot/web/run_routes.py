@@ -13,9 +13,9 @@ from pathlib import Path
 
 from aiohttp import web
 
+from gprbot.outputs.run_document import run_document
 from gprbot.shell import runfiles
 from gprbot.shell.commands import CommandError, Pull, parse_command
-from gprbot.web.results import run_document
 
 
 def checked_pull(run: str, name: str) -> Pull:

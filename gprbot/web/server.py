@@ -78,7 +78,7 @@ class WebConsole:
 
     def __init__(self, runtime: RobotRuntime, *, token_file: str | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        from gprbot.robot.handler import RobotHandler
+        from gprbot.robot.robot_commands import RobotHandler
 
         cfg = runtime.cfg
         self.rt, self.web_cfg, self.clock = runtime, cfg.web, clock
@@ -209,7 +209,8 @@ class WebConsole:
             return Reply.failure(ErrorCode.BAD_COMMAND, f"{line.split()[0]!r} belongs to the line shell; "
                                  "the console has runs and downloads on its Results page")
         try:
-            reply = await asyncio.wait_for(self.handler.handle(command, session.info), HANDLER_TIMEOUT_S)
+            async with asyncio.timeout(HANDLER_TIMEOUT_S):
+                reply = await self.handler.handle(command, session.info)
         except TimeoutError:
             return Reply.failure(ErrorCode.INTERNAL, f"the robot did not answer within {HANDLER_TIMEOUT_S:g} s")
         except GprbotError as exc:
@@ -223,7 +224,8 @@ class WebConsole:
         self.last_estop_t = self.clock()
         log.warning("web: estop from %s", info.peer)
         try:
-            return await asyncio.wait_for(self.handler.estop(info), HANDLER_TIMEOUT_S)
+            async with asyncio.timeout(HANDLER_TIMEOUT_S):
+                return await self.handler.estop(info)
         except Exception as exc:
             log.critical("web: estop handler failed", exc_info=True)
             return Reply.failure(ErrorCode.INTERNAL, f"estop failed: {exc!r}; use the hardware e-stop")

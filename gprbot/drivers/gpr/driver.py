@@ -17,9 +17,11 @@ from collections.abc import AsyncGenerator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
-from gprbot.config import GprDeviceConfig
+from gprbot.backoff import Backoff
+from gprbot.config import SIMULATED, GprDeviceConfig
 from gprbot.drivers.gpr import sdk_api as api
-from gprbot.drivers.gpr.sdk_client import READ_CHUNK, DeviceClock, SdkHttpClient
+from gprbot.drivers.gpr.raw_replay import trace_of
+from gprbot.drivers.gpr.sdk_client import READ_CHUNK, NicClock, SdkHttpClient
 from gprbot.drivers.gpr.trace_stream import (
     DuplicateTrace,
     Resync,
@@ -31,11 +33,20 @@ from gprbot.drivers.gpr.trace_stream import (
 )
 from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.errors import DriverError, GprbotError, ProtocolError
-from gprbot.messages import Trace
+from gprbot.messages import GprRawChunk, GprStreamSetup, Trace
 
 __all__ = [
-    "BACKOFF_INITIAL_S", "BACKOFF_MAX_S", "MIN_STALL_TIMEOUT_S", "QUEUE_SIZE", "READ_CHUNK", "STALL_PERIODS",
-    "DeviceClock", "GprDriver", "GprLinkStats", "SdkHttpClient", "Sleep",
+    "BACKOFF_INITIAL_S",
+    "BACKOFF_MAX_S",
+    "MIN_STALL_TIMEOUT_S",
+    "QUEUE_SIZE",
+    "READ_CHUNK",
+    "STALL_PERIODS",
+    "GprDriver",
+    "GprLinkStats",
+    "NicClock",
+    "SdkHttpClient",
+    "Sleep",
 ]
 
 Sleep = Callable[[float], Awaitable[None]]
@@ -63,12 +74,13 @@ class GprLinkStats:
 
 
 class GprDriver:
-    """The SPIDAR NIC-500 driver: `start()`, iterate `traces()`, read `health()`, `stop()`.
+    """The SPIDAR NIC-500 driver (the drivers' contract): `start()`, iterate `traces()`, `health()`, `close()`.
 
     Trace numbers are the NIC's until it restarts its numbering (a setup after a power cycle); from then
     on they continue from the last delivered number, so they always increase. `t0_ns` is where the first
     break lies in each trace (see `sdk_api.setup_from_config`). `clock` gives host receive times,
-    `sleep` paces the reconnect backoff, `raw_sink` sees every data-socket read with its receive time.
+    `sleep` paces the reconnect backoff, `raw_sink` gets a GprStreamSetup as each connection's parser
+    starts and a GprRawChunk per data-socket read (the run log's record of the raw stream).
     """
 
     def __init__(
@@ -80,18 +92,20 @@ class GprDriver:
         stall_timeout_s: float | None = None,
         backoff_initial_s: float = BACKOFF_INITIAL_S,
         backoff_max_s: float = BACKOFF_MAX_S,
-        raw_sink: Callable[[float, bytes], None] | None = None,
+        raw_sink: Callable[[GprStreamSetup | GprRawChunk], None] | None = None,
     ):
         self.cfg = cfg
-        self._raw_sink = raw_sink  # (receive time, bytes) of every data-socket read, for the run log
+        self._raw_sink = raw_sink  # every data-socket read and each connection's setup, for the run log
+        self._session = 0
         self._clock = clock
         self._sleep = sleep
-        self._stall_timeout_s = stall_timeout_s or max(MIN_STALL_TIMEOUT_S, STALL_PERIODS * cfg.trigger_period_s)
+        self._stall_timeout_s = (stall_timeout_s or cfg.stall_timeout_s
+                                 or max(MIN_STALL_TIMEOUT_S, STALL_PERIODS * cfg.trigger_period_s))
         self._backoff = (backoff_initial_s, backoff_max_s)
         self._http = SdkHttpClient(cfg.host, cfg.http_port, cfg.connect_timeout_s)
         self._health = HealthTracker("gpr")
         self._counter = TraceCounter()
-        self._device_clock = DeviceClock()
+        self._device_clock = NicClock()
         self._queue: asyncio.Queue[Trace | None] = asyncio.Queue(QUEUE_SIZE)
         self._parser: TraceStreamParser | None = None
         self._data: tuple[asyncio.StreamReader, asyncio.StreamWriter] | None = None
@@ -105,7 +119,7 @@ class GprDriver:
 
     async def start(self) -> None:
         """Check the device, power it, set it up, start acquiring and open the data socket."""
-        if self.cfg.host == "sim":
+        if self.cfg.host == SIMULATED:
             raise DriverError("gpr_device.host is 'sim': start GprSdkEmulator and use emulator.driver_config(cfg)")
         if self._task is not None:
             raise DriverError("the GPR driver is already started")
@@ -118,7 +132,7 @@ class GprDriver:
                 await self._close_data()
         self._task = asyncio.create_task(self._run(), name="gpr-driver")
 
-    async def stop(self) -> None:
+    async def close(self) -> None:
         """Stop the link and the NIC's acquisition; `traces()` ends after the queued traces."""
         self._stopping = True
         if self._task is not None:
@@ -136,7 +150,7 @@ class GprDriver:
             self._queue.put_nowait(None)
 
     async def traces(self) -> AsyncGenerator[Trace, None]:
-        """The received traces, in order, until `stop()`."""
+        """The received traces, in order, until `close()`."""
         while not (self._stopped and self._queue.empty()):
             trace = await self._queue.get()
             if trace is None:
@@ -202,7 +216,7 @@ class GprDriver:
         self.setup = applied
         self._t0_ns = api.first_break_ns(applied, reference_ps)
         self._counter.new_epoch()
-        self._new_parser()
+        self._new_parser(new_epoch=True)
         await self._http.put(api.RESOURCE_ACQUISITION, {"state": api.ACQUISITION_START})
         self._health.connected = True
 
@@ -216,10 +230,14 @@ class GprDriver:
         self._new_parser()
         self._health.connected = True
 
-    def _new_parser(self) -> None:
+    def _new_parser(self, new_epoch: bool = False) -> None:
         assert self.setup is not None
         self._retire_parser()
         self._parser = TraceStreamParser(self.setup.points_per_trace, self.setup.point_stacks, self._counter)
+        self._session += 1
+        if self._raw_sink is not None:
+            self._raw_sink(GprStreamSetup(self._clock(), self._session, self.setup.points_per_trace,
+                                          self.setup.point_stacks, self.setup.dt_ns, self._t0_ns, new_epoch))
 
     def _retire_parser(self) -> None:
         if self._parser is not None:
@@ -253,8 +271,7 @@ class GprDriver:
         self._health.connected = False
 
     async def _run(self) -> None:
-        initial, longest = self._backoff
-        delay = initial
+        backoff = Backoff(*self._backoff)
         while not self._stopping:  # besides the cancel: a cancel racing a timeout must not keep it alive
             if self._data is None:
                 try:
@@ -263,17 +280,15 @@ class GprDriver:
                 except GprbotError as exc:  # DriverError, or ProtocolError from a malformed reply
                     await self._close_data()
                     self._health.error(f"reconnect failed: {exc}")
-                    await self._sleep(delay)
-                    delay = min(2 * delay, longest)
+                    await self._sleep(backoff.next_s())
                     continue
             delivered_before = self._counts["traces"]
             reason = await self._pump()
             self._health.error(reason)
             await self._close_data()
             if self._counts["traces"] > delivered_before:
-                delay = initial
-            await self._sleep(delay)
-            delay = min(2 * delay, longest)
+                backoff.reset()
+            await self._sleep(backoff.next_s())
 
     async def _pump(self) -> str:
         """Read and deliver until the data socket fails; the reason it did."""
@@ -292,7 +307,7 @@ class GprDriver:
                 return "the NIC closed the data socket; reconnecting"
             received_s = self._clock()
             if self._raw_sink is not None:
-                self._raw_sink(received_s, chunk)
+                self._raw_sink(GprRawChunk(received_s, self._session, chunk))
             await self._handle(self._parser.feed(chunk), received_s)
 
     async def _handle(self, events: list[TraceEvent], received_s: float, wait: bool = True) -> None:
@@ -300,11 +315,9 @@ class GprDriver:
         for event in events:
             if isinstance(event, TraceFrame):
                 jumps = self._device_clock.jumps
-                t = self._device_clock.to_host(event.device_time_s, received_s)
+                trace = trace_of(event, self._device_clock, received_s, self.setup.dt_ns, self._t0_ns)
                 if self._device_clock.jumps != jumps:
                     self._health.error(f"the NIC's clock jumped by {self._device_clock.last_jump_s:+.3f} s")
-                trace = Trace(t=t, number=event.sequence, samples=event.samples, dt_ns=self.setup.dt_ns,
-                              t0_ns=self._t0_ns, stacks=event.stacks)
                 if wait:
                     await self._queue.put(trace)
                 else:

@@ -71,8 +71,12 @@ class SdkHttpClient:
                 await writer.wait_closed()
 
 
-class DeviceClock:
+class NicClock:
     """Converts the NIC's timestamps (its real-time clock) to host monotonic time, with jump detection.
+
+    Not the RealSense's DeviceClock on purpose: the NIC stamps one stream with a wall clock that NTP may
+    set, so a latency bound catches its jumps and times never go backwards; the D435i's four streams
+    share a free-running clock, tracked with a windowed minimum per stream.
 
     Host receive time minus device time is the clock offset plus a latency >= 0, so the smallest such
     sample is the best offset estimate; it may creep up by `drift_per_s` per host second to follow clock

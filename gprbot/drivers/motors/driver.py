@@ -19,15 +19,15 @@ from typing import TypeVar
 
 import numpy as np
 
-from gprbot.config import MotorsConfig
+from gprbot.config import SIMULATED, MotorsConfig
 from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.drivers.motors import protocol as rc
 from gprbot.drivers.motors import replies
 from gprbot.drivers.motors.bus import LinkError, PacketBus, SupersededError
-from gprbot.drivers.motors.encoders import CountUnwrapper, WheelEncoders
+from gprbot.drivers.motors.encoders import CountUnwrapper
 from gprbot.drivers.motors.safety import check_motors_config
 from gprbot.errors import DriverError
-from gprbot.messages import WheelSpeeds
+from gprbot.messages import WheelEncoders, WheelSpeeds
 
 RECONNECT_BACKOFF_S = (0.1, 2.0)  # first and longest wait between reconnection attempts
 R = TypeVar("R")
@@ -79,7 +79,7 @@ class MotorDriver:
 
     async def start(self) -> None:
         """Open the port(s), check that each address is a RoboClaw, arm the failsafe, stop the wheels."""
-        if any(url == "sim" for url in self._buses):
+        if any(url == SIMULATED for url in self._buses):
             raise DriverError(
                 "motors.port is 'sim': serve a RoboClawEmulator on a pty (emulator.serve_pty()) and "
                 "pass that path as motors.port"

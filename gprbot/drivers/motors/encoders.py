@@ -5,29 +5,6 @@ Pure (no I/O), so that odometry and replay can import it without the serial driv
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import numpy as np
-from numpy.typing import NDArray
-
-from gprbot.messages import WheelSpeeds, register_message
-
-
-@dataclass(frozen=True)
-class WheelEncoders:
-    """Wheel encoder readings: counts (int64, unwrapped past the 32-bit wrap) and speeds (rad/s)."""
-
-    t: float
-    counts: NDArray[np.int64]
-    speeds: NDArray[np.float64]
-
-    def wheel_speeds(self) -> WheelSpeeds:
-        """The measured speeds as the WheelSpeeds message that wheel odometry consumes."""
-        return WheelSpeeds(t=self.t, speeds=self.speeds.copy())
-
-
-register_message(WheelEncoders)
-
 
 class CountUnwrapper:
     """Turns the controller's wrapping 32-bit count into a continuous count, across reconnects too."""

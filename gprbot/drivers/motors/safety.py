@@ -9,12 +9,12 @@ Two stops bound the time from a fault to "all wheels commanded to 0":
 
 from __future__ import annotations
 
-from gprbot.config import MotorsConfig
+from gprbot.config import CONTROL_PERIOD_S, MotorsConfig
 from gprbot.drivers.motors.protocol import FIRST_ADDRESS, LAST_ADDRESS
 from gprbot.errors import ConfigError
 
 FAULT_STOP_BOUND_S = 0.1  # requirement: wheels commanded to stop within 100 ms of any fault
-CONTROL_PERIOD_S = 0.02  # the motion loop's period (50 Hz): a fault can sit this long before a request
+# CONTROL_PERIOD_S (config): the motion loop's period, so a fault can sit that long before a request
 
 
 def check_motors_config(cfg: MotorsConfig) -> None:

@@ -15,12 +15,12 @@ import asyncio
 import contextlib
 import time
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from gprbot.backoff import Backoff
 from gprbot.config import RealsenseConfig
 from gprbot.drivers.health import DriverHealth, HealthTracker
 from gprbot.drivers.realsense.clock import DeviceClock
@@ -28,33 +28,15 @@ from gprbot.drivers.realsense.handoff import Handoff
 from gprbot.drivers.realsense.readings import MotionReading, Reading, RgbdReading, Sink, SourceEvent
 from gprbot.drivers.realsense.source import RealsenseSource
 from gprbot.errors import DriverError
-from gprbot.messages import ImuSample, register_message
+from gprbot.messages import ImuSample, RawRgbdFrame
 
 __all__ = [
-    "STREAMS", "FrameSource", "Handoff", "Message", "RawRgbdFrame", "RealsenseDriver", "SourceFactory",
+    "STREAMS", "FrameSource", "Handoff", "Message", "RealsenseDriver", "SourceFactory",
 ]
 
 STREAMS = ("gyro", "accel", "depth", "color")
 
 
-@dataclass(frozen=True)
-class RawRgbdFrame:
-    """One RGB-D frame as the camera gives it: colour BGR uint8 (h, w, 3), depth uint16 (h, w) registered
-    to the colour image (metres = depth * depth_scale, 0 = no depth), the colour camera's pinhole
-    intrinsics (pixels). `fusion.frames.RgbdFrame` is its metric form (depth float32 m)."""
-
-    t: float
-    number: int
-    color: NDArray[np.uint8]
-    depth: NDArray[np.uint16]
-    depth_scale: float
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-
-register_message(RawRgbdFrame)
 Message = ImuSample | RawRgbdFrame
 
 
@@ -90,18 +72,21 @@ class RealsenseDriver:
         *,
         queue_size: int = 4096,  # readings: live, 6 s of IMU at 650 Hz before one is lost to a stalled loop
         frame_queue_size: int = 4,  # RGB-D frames among them, live (the oldest gives way)
-        stall_timeout_s: float = 3.0,
-        backoff_initial_s: float = 0.5,
-        backoff_max_s: float = 8.0,
-        jump_threshold_s: float = 0.1,
+        stall_timeout_s: float | None = None,  # None: realsense.stall_timeout_s (and so for the next three)
+        backoff_initial_s: float | None = None,
+        backoff_max_s: float | None = None,
+        jump_threshold_s: float | None = None,
         source_factory: SourceFactory = RealsenseSource,
         imu_to_base: NDArray[np.float64] | None = None,
     ):
         self.cfg, self._clock, self._factory = cfg, clock, source_factory
-        self.queue_size, self.stall_timeout_s = queue_size, stall_timeout_s
+        self.queue_size = queue_size
+        self.stall_timeout_s = cfg.stall_timeout_s if stall_timeout_s is None else stall_timeout_s
         self.frame_queue_size = frame_queue_size
-        self.backoff_initial_s, self.backoff_max_s = backoff_initial_s, backoff_max_s
-        self.jump_threshold_s = jump_threshold_s
+        first, longest = cfg.reconnect_backoff_s
+        self.backoff_initial_s = first if backoff_initial_s is None else backoff_initial_s
+        self.backoff_max_s = longest if backoff_max_s is None else backoff_max_s
+        self.jump_threshold_s = cfg.clock_jump_threshold_s if jump_threshold_s is None else jump_threshold_s
         self._imu_to_base = None if imu_to_base is None else np.asarray(imu_to_base, dtype=np.float64)
         self.reconnects = 0
         self._session = 0  # bumped when a source is given up: readings of older sources are stale
@@ -139,7 +124,7 @@ class RealsenseDriver:
         if self._playback:
             self._tasks.append(asyncio.create_task(self._finish_playback(), name="realsense-playback"))
 
-    async def stop(self) -> None:
+    async def close(self) -> None:
         """Stop streaming and end the message iteration (messages still queued are discarded)."""
         if self._handoff is not None:
             self._handoff.close()  # first: sensor.stop() waits for callbacks blocked on a full handoff
@@ -162,7 +147,7 @@ class RealsenseDriver:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
-        await self.stop()
+        await self.close()
 
     def __aiter__(self) -> AsyncIterator[Message]:
         return self.messages()
@@ -178,9 +163,20 @@ class RealsenseDriver:
             assert isinstance(item, ImuSample | RawRgbdFrame)
             yield item
 
-    def health(self) -> dict[str, DriverHealth]:
+    def streams(self) -> dict[str, DriverHealth]:
         """Per stream (gyro, accel, depth, color): connected, rate, drops from frame-number gaps, errors."""
         return {name: tracker.snapshot() for name, tracker in self._trackers.items()}
+
+    def health(self) -> DriverHealth:
+        """The camera as one link: connected while every stream is, its IMU rate, drops and errors summed."""
+        streams = list(self.streams().values())
+        last = [h.last_message_t for h in streams if h.last_message_t is not None]
+        errors = [h for h in streams if h.last_error]
+        return DriverHealth(
+            name="realsense", connected=all(h.connected for h in streams),
+            rate_hz=sum(h.rate_hz for h in streams if h.name in ("realsense.gyro", "realsense.accel")),
+            drops=sum(h.drops for h in streams), errors=sum(h.errors for h in streams),
+            last_error=errors[-1].last_error if errors else None, last_message_t=max(last) if last else None)
 
     async def _open_source(self) -> None:
         assert self._handoff is not None
@@ -209,7 +205,8 @@ class RealsenseDriver:
                 if handoff.closed:
                     break
                 try:
-                    await asyncio.wait_for(handoff.wait(), None if self._playback else self.stall_timeout_s)
+                    async with asyncio.timeout(None if self._playback else self.stall_timeout_s):
+                        await handoff.wait()
                 except TimeoutError:
                     await self._reconnect(f"no frames for {self.stall_timeout_s} s")
                 continue
@@ -238,14 +235,13 @@ class RealsenseDriver:
             tracker.connected = False
         if self._source is not None:
             await asyncio.to_thread(self._source.close)
-        delay = self.backoff_initial_s
+        backoff = Backoff(self.backoff_initial_s, self.backoff_max_s)
         while True:
-            await asyncio.sleep(delay)
+            await asyncio.sleep(backoff.next_s())
             try:
                 await self._open_source()
             except DriverError as exc:
                 self._error_all(str(exc))
-                delay = min(2.0 * delay, self.backoff_max_s)
                 continue
             self.reconnects += 1
             return

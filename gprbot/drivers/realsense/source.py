@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from gprbot.config import RealsenseConfig
+from gprbot.config import SIMULATED, RealsenseConfig
 from gprbot.drivers.realsense.clock import FramePairer
+from gprbot.drivers.realsense.depth_to_color import DepthToColor, same_geometry
 from gprbot.drivers.realsense.readings import Intrinsics, MotionReading, Reading, RgbdReading, Sink, SourceEvent
-from gprbot.drivers.realsense.registration import DepthToColor, same_geometry
 from gprbot.drivers.realsense.sdk import require_pyrealsense
 from gprbot.errors import DriverError
 
@@ -137,7 +137,7 @@ class RealsenseSource:
 
     def _open_device(self, sdk: Any, ctx: Any) -> list[tuple[Any, list[Any]]]:
         cfg = self.cfg
-        if cfg.source == "sim" and self._given_device is None:
+        if cfg.source == SIMULATED and self._given_device is None:
             raise DriverError(
                 'realsense.source is "sim": the simulator provides the camera; set realsense.source to '
                 '"device" (or a serial number) or realsense.playback to a recording'
@@ -213,7 +213,7 @@ class RealsenseSource:
         registered = self._register(depth_frame, color_frame) if self._register else depth_frame
         color = np.asanyarray(color_frame.get_data())
         if color_frame.get_profile().format().name == "rgb8":
-            color = color[..., ::-1]  # published BGR, as OpenCV and fusion.frames.RgbdFrame have it
+            color = color[..., ::-1]  # published BGR, as OpenCV and messages.RgbdFrame have it
         return RgbdReading(
             depth_number=depth_frame.get_frame_number(),
             color_number=color_frame.get_frame_number(),
