@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from gprbot.progress import track
-from training.migration_data import LINES_PER_SCENE, VELOCITY_JITTER, build_split, load_split
+from training.migration_data import CACHE_VERSION, LINES_PER_SCENE, VELOCITY_JITTER, build_split, load_split
 from training.migrationnet import MigrationNet, bce_dice_loss, build_migrationnet
 
 ROOT = Path(__file__).resolve().parent
@@ -80,7 +80,8 @@ def save(path: Path, model: torch.nn.Module, config: dict[str, Any], epoch: int,
 def data_description() -> str:
     """What the model was trained on, for the model card."""
     return (f"training.random_scenes split 'train' (1378 scenes, seeds 0-1377), {LINES_PER_SCENE} random lines per "
-            f"scene, one 128x128 depth tile per line (training.migration_data, cache v1); velocity jitter "
+            f"scene, one 128x128 depth tile per line (training.migration_data, cache v{CACHE_VERSION}: "
+            f"calibrated simulator, domain-randomised train/val lines); velocity jitter "
             f"{VELOCITY_JITTER:.0%}; validation: split 'val' (100 scenes, seeds 100000-100099)")
 
 
@@ -142,6 +143,9 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         if metrics["val_iou"] > best["iou"]:
             best = {"iou": metrics["val_iou"], "epoch": epoch + 1}
             save(best_path, model, config, epoch + 1, args.seed, {"val": metrics, "history": history}, {})
+        if args.keep_epochs:  # each epoch kept, for model selection on the FDTD dev half (training.select_fdtd)
+            save(CHECKPOINTS / f"{args.name}_e{epoch + 1}.pt", model, config, epoch + 1, args.seed,
+                 {"val": metrics, "history": history}, {})
         save(last, model, config, epoch + 1, args.seed, {"val": metrics, "history": history},
              {"optimiser": optimiser.state_dict(), "scheduler": scheduler.state_dict(),
               "generator": gen.get_state(), "best": best, "history": history})
@@ -187,6 +191,7 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="only the first N scenes of each split")
     parser.add_argument("--name", default="migrationnet")
     parser.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True)
+    parser.add_argument("--keep-epochs", action="store_true", help="also keep every epoch's weights (…_eN.pt)")
     parser.add_argument("--init", type=Path, default=None, help="start from this checkpoint's weights")
     parser.add_argument("--calibrate", type=Path, default=None,
                         help="only pick the mask threshold on the validation split and store it in this checkpoint")

@@ -22,6 +22,7 @@ from gprbot.config import GprConfig
 from gprbot.gpr.dzt import read_dzt
 from gprbot.sim.forward import receiver_drift, simulate_bscan
 from gprbot.sim.scene import Pipe, Scene, Slab
+from gprbot.sim.variation import SignalVariation
 from validation.calib_measure import direct_window_ns, wavelet_corr
 
 FDTD_DATA = Path(__file__).resolve().parent / "fdtd" / "data"
@@ -103,17 +104,18 @@ def to_gpr_config(truth: dict[str, Any], samples: int) -> GprConfig:
 
 
 def render_ours(truth: dict[str, Any], samples: int, debye: tuple[float, float] | None = None,
-                seed: int = 0) -> NDArray[np.float64]:
+                seed: int = 0, variation: SignalVariation | None = None) -> NDArray[np.float64]:
     """Our B-scan (traces, samples) in mV at the truth's trace midpoints, without the receiver's wow and noise.
 
     The wow is a receiver artefact the FDTD has no counterpart of; it is the first draw from the generator
     in `simulate_bscan`, so the same draw from a second generator of the same seed removes it exactly.
+    A `variation` renders one point of the training data's domain randomisation instead of the default.
     """
     gpr = to_gpr_config(truth, samples)
     mid = np.zeros((len(truth["trace_x_m"]), 2))
     mid[:, 0] = truth["trace_x_m"]
     scene = to_sim_scene(truth, debye)
-    bscan = simulate_bscan(scene, mid, gpr, np.random.default_rng(seed)).astype(np.float64)
+    bscan = simulate_bscan(scene, mid, gpr, np.random.default_rng(seed), variation=variation).astype(np.float64)
     return bscan - receiver_drift(len(mid), gpr, np.random.default_rng(seed))
 
 
