@@ -77,13 +77,22 @@ def debye_of(name: str) -> tuple[float, float] | None:
     return next((s.concrete.debye for s in all_scenes() if s.name == name), None)
 
 
-def to_sim_scene(truth: dict[str, Any], debye: tuple[float, float] | None = None) -> Scene:
-    """Our scene: a slab under the line, each truth pipe and rebar a straight pipe along y crossing it."""
+FDTD_SOIL_EPS_R = 15.0  # the generator's "soil" (validation.fdtd.gprmax_input.EPS_SOIL)
+
+
+def _below_eps_r(truth: dict[str, Any]) -> float:
+    """What lies under the FDTD slab's bottom, as our slab's below_eps_r."""
+    return 1.0 if below_of(truth["name"]) == "air" else FDTD_SOIL_EPS_R
+
+
+def to_sim_scene(truth: dict[str, Any], debye: tuple[float, float] | None = None,
+                 below_eps_r: float = 15.0) -> Scene:
+    """Our scene: a slab under the line (over soil, or air: below_eps_r 1), each truth target a pipe along y."""
     xs = truth["trace_x_m"]
     x0, x1 = min(xs) - 1.0, max(xs) + 1.0
     thickness = truth["slab_bottom_m"] or HALF_SPACE_M
     slab = Slab((x1 - x0, 2.0 * HALF_LENGTH_M + 0.2), (x0, -HALF_LENGTH_M - 0.1), float(thickness),
-                float(truth["eps_r"]), loss_db_per_m(truth, debye))
+                float(truth["eps_r"]), loss_db_per_m(truth, debye), below_eps_r)
 
     def pipe(name: str, x: float, depth: float, radius: float, fill: str) -> Pipe:
         points = np.array([[x, -HALF_LENGTH_M, -depth], [x, HALF_LENGTH_M, -depth]])
@@ -114,7 +123,7 @@ def render_ours(truth: dict[str, Any], samples: int, debye: tuple[float, float] 
     gpr = to_gpr_config(truth, samples)
     mid = np.zeros((len(truth["trace_x_m"]), 2))
     mid[:, 0] = truth["trace_x_m"]
-    scene = to_sim_scene(truth, debye)
+    scene = to_sim_scene(truth, debye, _below_eps_r(truth))
     bscan = simulate_bscan(scene, mid, gpr, np.random.default_rng(seed), variation=variation).astype(np.float64)
     return bscan - receiver_drift(len(mid), gpr, np.random.default_rng(seed))
 

@@ -318,8 +318,9 @@ def main(argv: list[str] | None = None) -> int:
     variation = SignalVariation(phase_deg=args.phase, peak_factor=args.peak_factor)
     if args.footprint is not None:
         variation = replace(variation, footprint_power=args.footprint)
-    what = "" if variation.is_identity else (f", ours with the wavelet rotated {variation.phase_deg:g}°, peaking at "
-                                             f"{variation.peak_factor:g} f, footprint cos^{variation.footprint_power:g}")
+    what = "" if variation.is_identity else (
+        f", ours with the wavelet rotated {variation.phase_deg:g}°, peaking at {variation.peak_factor:g} f, "
+        f"footprint cos^{variation.footprint_power:g}")
     what += f", {args.half} half only" if args.half else ""
     results = []
     for name in names:

@@ -116,7 +116,7 @@ def _add_slab_bottom(
     attenuation = 10.0 ** (-slab.loss_db_per_m * 2.0 * slab.thickness_m / 20.0)
     n = math.sqrt(slab.eps_r)
     transmission = 4.0 * n / (1.0 + n) ** 2
-    amplitude = SOURCE_MV_M * transmission * slab_bottom_coefficient(slab.eps_r) * attenuation / path
+    amplitude = SOURCE_MV_M * transmission * slab_bottom_coefficient(slab) * attenuation / path
     shadow = shadow_factor(shadowing, mid, gpr.centre_frequency_mhz, v)
     events.add(t, amplitude * shadow * on_slab)
 

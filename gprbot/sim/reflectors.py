@@ -38,7 +38,6 @@ FOOTPRINT_POWER = 3.0  # cos³θ: the flanks of a hyperbola beyond ~45° fade be
 # upper bound (docs/eval/sim_vs_fdtd.md).
 SURFACE_MULTIPLE = 0.25
 END_TAPER_M = 0.03  # a pipe's open end diffracts weakly: fade its echo over 3 cm past the end
-SUBGRADE_EPS = 15.0  # moist soil under the slab
 _CLUTTER_COEFFICIENT = (0.05, 0.3)  # aggregate / voids: weak contrasts of either sign
 CLUTTER_CUTOFF_MV = 0.01  # clutter echoes weaker than this are not traced (noise is ~0.5 mV)
 
@@ -98,9 +97,9 @@ def interface_coefficient(eps_from: float, eps_to: float) -> float:
     return (n1 - n2) / (n1 + n2)
 
 
-def slab_bottom_coefficient(eps_slab: float) -> float:
-    """Reflection coefficient of the slab's bottom face (concrete onto the subgrade)."""
-    return interface_coefficient(eps_slab, SUBGRADE_EPS)
+def slab_bottom_coefficient(slab: Slab) -> float:
+    """Reflection coefficient of the slab's bottom face (concrete onto what lies below: soil or air)."""
+    return interface_coefficient(slab.eps_r, slab.below_eps_r)
 
 
 def _ray_amplitude(points: FloatArray, mid: FloatArray, slab: Slab, gpr: GprConfig,

@@ -120,7 +120,8 @@ def wavelet_kernel(lags_ns: FloatArray, centre_frequency_mhz: float, variation: 
     if variation.ring_amplitude > 0.0:
         period = 1e3 / f
         u = lags_ns - _RING_DELAY_PERIODS * period
-        ring = np.sin(2.0 * math.pi * u / period) * np.exp(-np.maximum(u, 0.0) / (variation.ring_decay_periods * period))
+        decay = np.exp(-np.maximum(u, 0.0) / (variation.ring_decay_periods * period))
+        ring = np.sin(2.0 * math.pi * u / period) * decay
         kernel = kernel + variation.ring_amplitude * np.where(u > 0.0, ring, 0.0)
     return np.asarray(np.where(np.abs(lags_ns) <= half * dt_ns, kernel, 0.0))
 
