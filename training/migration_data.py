@@ -30,8 +30,8 @@ from gprbot.infer.migrationnet import cut_tiles, depth_grid, depth_section
 from gprbot.progress import track
 from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.scene import Clutter, Scene
-from gprbot.sim.variation import DomainRandomisation, SignalVariation, varied_config
 from gprbot.sim.truth import cross_section_mask
+from gprbot.sim.variation import DomainRandomisation, SignalVariation, varied_config
 from training.random_scenes import (
     SurveySpec,
     gpr_config,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import functools
 import importlib.util
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -42,6 +43,7 @@ def _export_tool() -> ModuleType:
     if spec is None or spec.loader is None:
         raise RuntimeError(f"cannot load {EXPORT_SCRIPT}")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
@@ -67,7 +69,9 @@ def score_model(model: Path) -> dict[str, dict[str, str]]:
     hits = [len(match(r.outcome.found, r.case.targets, r.case.tolerance_m)) for r in real]
     total = sum(len(r.case.targets) for r in real)
     extra = sum(len(r.outcome.found) - h for r, h in zip(real, hits, strict=True))
-    out["real files"] = {"found": f"{sum(hits)}/{total} targets, {extra} detections on no target"}
+    per_file = ", ".join(f"{r.case.name.split(' (')[0]} {h}/{len(r.case.targets)}+{len(r.outcome.found) - h}"
+                         for r, h in zip(real, hits, strict=True))
+    out["real files"] = {"found": f"{sum(hits)}/{total} targets, {extra} detections on no target ({per_file})"}
     return out
 
 

@@ -59,13 +59,39 @@ def evaluate(net: MigrationNet, x: np.ndarray, y: np.ndarray, batch: int = 32) -
             "precision": tp / max(tp + fp, 1.0), "recall": tp / max(tp + fn, 1.0)}
 
 
-def augment(xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mirror along track (half the batch) and scale amplitudes by 0.7–1.4 (gain differences)."""
+def augment(xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator,
+            layers: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mirror along track (half the batch), scale amplitudes by 0.7–1.4 (gain differences), add layers.
+
+    With probability `layers` a tile also gets one to three dipping, gently curved layer echoes that are
+    not pipes (geology, screeds, slab interfaces: what the random scenes lack and real lines have).
+    """
     flip = torch.rand(len(xb), generator=gen) < 0.5
     xb = torch.where(flip[:, None, None, None], xb.flip(-1), xb)
     yb = torch.where(flip[:, None, None, None], yb.flip(-1), yb)
     scale = torch.exp(torch.empty(len(xb), 1, 1, 1).uniform_(math.log(0.7), math.log(1.4), generator=gen))
-    return xb * scale, yb
+    xb = xb * scale
+    if layers > 0.0:
+        xb = xb + layer_echoes(len(xb), xb.shape[-2], xb.shape[-1], gen, layers)
+    return xb, yb
+
+
+def layer_echoes(n: int, rows: int, cols: int, gen: torch.Generator, probability: float) -> torch.Tensor:
+    """(n, 1, rows, cols) of zero or up to three layer echoes: a Ricker across depth along a dipping curve."""
+    out = torch.zeros(n, 1, rows, cols)
+    z = torch.arange(rows, dtype=torch.float32)[:, None]
+    x = torch.linspace(-1.0, 1.0, cols)[None, :]
+    for i in range(n):
+        if float(torch.rand(1, generator=gen)) >= probability:
+            continue
+        for _ in range(int(torch.randint(1, 4, (1,), generator=gen))):
+            a, dip, bend, width, amp = (torch.rand(5, generator=gen) * torch.tensor([rows, 0.6, 0.16, 6.0, 2.5])
+                                        + torch.tensor([0.0, -0.3, -0.08, 2.0, 0.3]))
+            centre = a + rows * (dip * x + bend * x**2)
+            u = ((z - centre) / width) ** 2
+            sign = 1.0 if float(torch.rand(1, generator=gen)) < 0.5 else -1.0
+            out[i, 0] += sign * amp * (1.0 - 2.0 * u) * torch.exp(-u)
+    return out
 
 
 def save(path: Path, model: torch.nn.Module, config: dict[str, Any], epoch: int, seed: int,
@@ -123,7 +149,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             idx = np.sort(order[step * args.batch:(step + 1) * args.batch])
             xb = torch.from_numpy(x_train[idx].astype(np.float32))
             yb = torch.from_numpy(y_train[idx].astype(np.float32))
-            xb, yb = augment(xb, yb, gen)
+            xb, yb = augment(xb, yb, gen, args.layers)
             loss = bce_dice_loss(net(xb), yb)
             optimiser.zero_grad()
             loss.backward()
@@ -191,6 +217,8 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="only the first N scenes of each split")
     parser.add_argument("--name", default="migrationnet")
     parser.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True)
+    parser.add_argument("--layers", type=float, default=0.0,
+                        help="probability of adding non-pipe layer echoes to a training tile (augment)")
     parser.add_argument("--keep-epochs", action="store_true", help="also keep every epoch's weights (…_eN.pt)")
     parser.add_argument("--init", type=Path, default=None, help="start from this checkpoint's weights")
     parser.add_argument("--calibrate", type=Path, default=None,
