@@ -7,9 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from gprbot.sim.variation import SignalVariation
 from validation import calib_measure as m
 from validation.calib_scene import FDTD_DATA, load_fdtd, loss_db_per_m, render_ours, to_gpr_config, to_sim_scene
-from validation.calibration import ReflectorRow, SceneResult, compare, kept_findings, report
+from validation.calibration import ReflectorRow, SceneResult, compare, kept_findings, report, residual_table
 
 SCENE = "metal_pipe_2600"  # the smallest committed scene: one metal pipe
 
@@ -80,3 +81,22 @@ def test_report_writer_makes_tables_and_keeps_the_findings(tmp_path) -> None:
     path = tmp_path / "r.md"
     path.write_text(text)
     assert kept_findings(path) == "our findings"
+
+
+def test_residual_row_and_the_surface_multiple_of_a_metal_pipe() -> None:
+    if not (FDTD_DATA / f"{SCENE}.DZT").exists():
+        pytest.skip("FDTD scene not committed")
+    s = compare(SCENE)
+    (row,) = s.rows
+    ours, fdtd = row.multiple
+    assert 0.0 < ours < 1.0 and 0.0 < fdtd < 1.0  # a multiple is weaker than its primary
+    head, _, line = residual_table([s])
+    assert "multiple/primary O" in head and f"{ours:.3f}" in line
+
+
+def test_a_variation_changes_ours_and_keeps_the_kinematics() -> None:
+    if not (FDTD_DATA / f"{SCENE}.DZT").exists():
+        pytest.skip("FDTD scene not committed")
+    plain, rotated = compare(SCENE), compare(SCENE, SignalVariation(phase_deg=90.0))
+    assert rotated.ncc != pytest.approx(plain.ncc, abs=1e-3)
+    assert rotated.rows[0].dt_apex == pytest.approx(plain.rows[0].dt_apex, abs=0.05)  # envelopes barely move

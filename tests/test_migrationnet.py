@@ -111,6 +111,20 @@ def test_a_few_training_steps_reduce_the_loss() -> None:
     assert losses[-1] < 0.85 * losses[0], losses
 
 
+def test_layer_augmentation_adds_echoes_to_the_input_only() -> None:
+    from training.train_migrationnet import augment, layer_echoes
+
+    gen = torch.Generator().manual_seed(3)
+    assert not layer_echoes(4, ROWS, COLS, gen, 0.0).any()
+    layers = layer_echoes(8, ROWS, COLS, gen, 1.0)
+    assert all(bool(t.abs().max() > 0.2) for t in layers)
+    assert bool((layers.abs() > 0.1).float().mean() < 0.5)  # bands of a wavelet, not a wash over the tile
+    xb, yb = torch.zeros(4, 1, ROWS, COLS), torch.zeros(4, 1, ROWS, COLS)
+    yb[:, :, 60:70, 60:70] = 1.0
+    x_aug, y_aug = augment(xb, yb, torch.Generator().manual_seed(0), layers=1.0)
+    assert bool(x_aug.abs().sum() > 0) and torch.equal(y_aug.sum(dim=(1, 2, 3)), yb.sum(dim=(1, 2, 3)))
+
+
 def test_export_round_trip_and_interpreter(tmp_path: Path) -> None:
     sys.path.insert(0, str(ROOT / "tools"))
     from export_onnx import export

@@ -12,6 +12,7 @@ from gprbot.config import GprConfig
 from gprbot.gpr.traveltime import C_M_PER_NS, two_way_time, velocity_from_eps
 from gprbot.gpr.wavelet import ricker
 from gprbot.sim.forward import simulate_bscan
+from gprbot.sim.reflectors import FILL_OPTICS
 from gprbot.sim.scene import Fill, Pipe, Scene, Slab, load_scene
 from gprbot.sim.truth import cross_section_mask, sample_pipe_interiors
 
@@ -101,9 +102,10 @@ def test_pvc_air_shows_top_and_inner_bottom_with_the_round_trip_delay() -> None:
     window = slice(int(_sample_of(t_top + 0.6, gpr)), int(_sample_of(t_top + 1.8, gpr)))
     bottom = window.start + int(np.argmin(echo[window]))
     assert abs(bottom - _sample_of(t_top + delay, gpr)) <= 1.0
-    # Fresnel: top r = (n - 1)/(n + 1); bottom -r (1 - r²) after crossing the top wall twice
+    # Fresnel: top r·w = (n - 1)/(n + 1)·w; bottom -r (1 - r²)·w² after crossing the top wall twice
     r = (math.sqrt(SLAB.eps_r) - 1.0) / (math.sqrt(SLAB.eps_r) + 1.0)
-    assert echo[bottom] / echo.max() == pytest.approx(-(1.0 - r * r), rel=0.1)
+    w = FILL_OPTICS["pvc-air"].wall_factor
+    assert echo[bottom] / echo.max() == pytest.approx(-(1.0 - r * r) * w, rel=0.1)
 
 
 def test_amplitude_falls_with_depth_and_along_the_flanks() -> None:
@@ -133,6 +135,14 @@ def test_direct_wave_wow_and_slab_bottom_of_an_empty_slab() -> None:
     t_bottom = float(two_way_time(np.array([1.0, LINE_Y]), bottom_point, V, 0.02, 0.05, np.array([1.0, 0.0])))
     assert abs(int(np.argmin(bottom)) - _sample_of(t_bottom, gpr)) <= 1.0  # concrete onto moist soil: negative
     assert 2.0 < -bottom.min() < 50.0
+    # a suspended slab: concrete onto air reflects with the opposite sign and more strongly
+    over_air = dataclasses.replace(_scene(), slab=dataclasses.replace(SLAB, below_eps_r=1.0))
+    air = simulate_bscan(over_air, np.array([[1.0, LINE_Y]]), gpr, np.random.default_rng(0))[0]
+    air_bottom = air - simulate_bscan(thick, np.array([[1.0, LINE_Y]]), gpr, np.random.default_rng(0))[0]
+    assert abs(int(np.argmax(air_bottom)) - _sample_of(t_bottom, gpr)) <= 1.0
+    n = math.sqrt(SLAB.eps_r)  # Fresnel: (n - 1)/(n + 1) onto air against (n - √15)/(n + √15) onto soil
+    ratio = ((n - 1.0) / (n + 1.0)) / ((math.sqrt(15.0) - n) / (math.sqrt(15.0) + n))
+    assert air_bottom.max() / -bottom.min() == pytest.approx(ratio, rel=0.05)
 
 
 def test_rebar_bars_appear_at_their_positions() -> None:

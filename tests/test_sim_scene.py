@@ -202,3 +202,13 @@ def test_a_scene_file_round_trips(tmp_path: Path) -> None:
     path.write_text(yaml.safe_dump(data))
     scene = load_scene(str(path))
     assert scene.name == "mine" and len(scene.pipes) == 3 and scene.rebar is None
+
+
+def test_what_lies_under_the_slab_is_soil_unless_the_scene_says_air() -> None:
+    assert parse_scene(_minimal(), "t.yaml").slab.below_eps_r == 15.0
+    suspended = _minimal()
+    suspended["slab"]["below_eps_r"] = 1.0
+    assert parse_scene(suspended, "t.yaml").slab.below_eps_r == 1.0
+    suspended["slab"]["below_eps_r"] = 0.0
+    with pytest.raises(ConfigError, match="below_eps_r"):
+        parse_scene(suspended, "t.yaml")

@@ -3,8 +3,11 @@
 For each scene of a split (training.random_scenes), a few of its survey lines are simulated with the
 forward model at the true antenna positions, recorded with pose noise, preprocessed and converted to
 depth exactly as at run time (gprbot.infer.migrationnet.depth_section), with the true velocity
-perturbed by a few per cent in training (the survey velocity is an estimate). The target is the
-true cross-section mask (gprbot.sim.truth) on the same grid. Tiles are cached as .npz in training/cache/.
+perturbed by a few per cent in training (the survey velocity is an estimate). The train and val lines
+are domain-randomised (gprbot.sim.variation: wavelet phase/peak, ringing, footprint, polarity, gain,
+noise, clutter, antenna height; one draw per line from the scene's seed), the test lines are the default
+simulator. The target is the true cross-section mask (gprbot.sim.truth) on the same grid. Tiles are
+cached as .npz in training/cache/.
 
     python -m training.migration_data --split train   # ~1378 scenes × 4 lines × 1 tile
 """
@@ -13,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from multiprocessing import Pool
 from pathlib import Path
 from typing import Literal
@@ -26,8 +29,9 @@ from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.infer.migrationnet import cut_tiles, depth_grid, depth_section
 from gprbot.progress import track
 from gprbot.sim.forward import simulate_bscan
-from gprbot.sim.scene import Scene
+from gprbot.sim.scene import Clutter, Scene
 from gprbot.sim.truth import cross_section_mask
+from gprbot.sim.variation import DomainRandomisation, SignalVariation, varied_config
 from training.random_scenes import (
     SurveySpec,
     gpr_config,
@@ -38,7 +42,8 @@ from training.random_scenes import (
 )
 
 CACHE_DIR = Path(__file__).resolve().parent / "cache"
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # v2: calibrated simulator (issue 12 item 5) and domain randomisation of train/val
+RANDOMISATION = DomainRandomisation()
 LINES_PER_SCENE = 4
 VELOCITY_JITTER = 0.03  # relative std of the velocity error in training
 _TRACE_INTERVAL_S = 0.05
@@ -55,22 +60,24 @@ class LineSample:
     velocity_m_per_ns: float
 
 
-def simulate_line(scene: Scene, spec: SurveySpec, line: int, rng: np.random.Generator) -> BScan:
+def simulate_line(scene: Scene, spec: SurveySpec, line: int, rng: np.random.Generator,
+                  variation: SignalVariation | None = None) -> BScan:
     """The raw B-scan of one survey line, positions as recorded (with pose noise)."""
     gpr = gpr_config(spec, scene)
     true_xy = line_antenna_xy(spec, line)
-    data = simulate_bscan(scene, true_xy, gpr, rng)
+    data = simulate_bscan(scene, true_xy, gpr, rng, variation=variation)
     positions = recorded_positions(true_xy, spec, rng)
     times = np.arange(len(true_xy)) * _TRACE_INTERVAL_S
     return BScan(data, gpr.dt_ns, gpr.pre_trigger_ns, positions, times)
 
 
 def line_sample(scene: Scene, spec: SurveySpec, line: int, rng: np.random.Generator,
-                velocity_jitter: float = 0.0) -> LineSample:
-    """Simulate one line and build its network input and true mask."""
-    bscan = simulate_line(scene, spec, line, rng)
+                velocity_jitter: float = 0.0, variation: SignalVariation | None = None) -> LineSample:
+    """Simulate one line and build its network input and true mask (interpreted at the variation's height)."""
+    bscan = simulate_line(scene, spec, line, rng, variation)
     v = velocity_from_eps(scene.slab.eps_r) * (1.0 + velocity_jitter * float(rng.standard_normal()))
-    image, x = depth_section(bscan, gpr_config(spec, scene), v)
+    gpr = gpr_config(spec, scene)
+    image, x = depth_section(bscan, gpr if variation is None else varied_config(gpr, variation), v)
     columns = np.stack([spec.start_xy[0] + x, np.full(len(x), spec.line_y(line))], axis=1)
     mask = cross_section_mask(scene, columns, depth_grid())
     return LineSample(image, mask, x, line, v)
@@ -83,9 +90,16 @@ def scene_tiles(seed: int, split: str) -> tuple[NDArray[np.float16], NDArray[np.
     kept = list(spec.kept_lines())
     lines = rng.choice(kept, size=min(LINES_PER_SCENE, len(kept)), replace=False)
     jitter = VELOCITY_JITTER if split == "train" else 0.0
+    randomise = split != "test"
+    dr = np.random.default_rng([seed, 2])  # its own stream: the scene's lines and tiles stay those of v1
+    if randomise and scene.clutter is None and dr.random() < RANDOMISATION.clutter_probability:
+        depth = (0.02, scene.slab.thickness_m - 0.02)
+        clutter = Clutter(int(dr.integers(50, 300)), float(dr.uniform(0.004, 0.012)), depth, int(dr.integers(2**31)))
+        scene = replace(scene, clutter=clutter)
     inputs, targets = [], []
     for line in sorted(int(i) for i in lines):
-        sample = line_sample(scene, spec, line, rng, jitter)
+        variation = RANDOMISATION.draw(dr) if randomise else None
+        sample = line_sample(scene, spec, line, rng, jitter, variation)
         tiles, starts = cut_tiles(sample.image)
         masks, _ = cut_tiles(sample.mask.astype(np.float32))
         # Mostly the tile holding the most pipe pixels (a pipe tends to cross a line once), else any.

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from gprbot.progress import track
-from training.migration_data import LINES_PER_SCENE, VELOCITY_JITTER, build_split, load_split
+from training.migration_data import CACHE_VERSION, LINES_PER_SCENE, VELOCITY_JITTER, build_split, load_split
 from training.migrationnet import MigrationNet, bce_dice_loss, build_migrationnet
 
 ROOT = Path(__file__).resolve().parent
@@ -59,13 +59,39 @@ def evaluate(net: MigrationNet, x: np.ndarray, y: np.ndarray, batch: int = 32) -
             "precision": tp / max(tp + fp, 1.0), "recall": tp / max(tp + fn, 1.0)}
 
 
-def augment(xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mirror along track (half the batch) and scale amplitudes by 0.7–1.4 (gain differences)."""
+def augment(xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator,
+            layers: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mirror along track (half the batch), scale amplitudes by 0.7–1.4 (gain differences), add layers.
+
+    With probability `layers` a tile also gets one to three dipping, gently curved layer echoes that are
+    not pipes (geology, screeds, slab interfaces: what the random scenes lack and real lines have).
+    """
     flip = torch.rand(len(xb), generator=gen) < 0.5
     xb = torch.where(flip[:, None, None, None], xb.flip(-1), xb)
     yb = torch.where(flip[:, None, None, None], yb.flip(-1), yb)
     scale = torch.exp(torch.empty(len(xb), 1, 1, 1).uniform_(math.log(0.7), math.log(1.4), generator=gen))
-    return xb * scale, yb
+    xb = xb * scale
+    if layers > 0.0:
+        xb = xb + layer_echoes(len(xb), xb.shape[-2], xb.shape[-1], gen, layers)
+    return xb, yb
+
+
+def layer_echoes(n: int, rows: int, cols: int, gen: torch.Generator, probability: float) -> torch.Tensor:
+    """(n, 1, rows, cols) of zero or up to three layer echoes: a Ricker across depth along a dipping curve."""
+    out = torch.zeros(n, 1, rows, cols)
+    z = torch.arange(rows, dtype=torch.float32)[:, None]
+    x = torch.linspace(-1.0, 1.0, cols)[None, :]
+    for i in range(n):
+        if float(torch.rand(1, generator=gen)) >= probability:
+            continue
+        for _ in range(int(torch.randint(1, 4, (1,), generator=gen))):
+            a, dip, bend, width, amp = (torch.rand(5, generator=gen) * torch.tensor([rows, 0.6, 0.16, 6.0, 2.5])
+                                        + torch.tensor([0.0, -0.3, -0.08, 2.0, 0.3]))
+            centre = a + rows * (dip * x + bend * x**2)
+            u = ((z - centre) / width) ** 2
+            sign = 1.0 if float(torch.rand(1, generator=gen)) < 0.5 else -1.0
+            out[i, 0] += sign * amp * (1.0 - 2.0 * u) * torch.exp(-u)
+    return out
 
 
 def save(path: Path, model: torch.nn.Module, config: dict[str, Any], epoch: int, seed: int,
@@ -80,7 +106,8 @@ def save(path: Path, model: torch.nn.Module, config: dict[str, Any], epoch: int,
 def data_description() -> str:
     """What the model was trained on, for the model card."""
     return (f"training.random_scenes split 'train' (1378 scenes, seeds 0-1377), {LINES_PER_SCENE} random lines per "
-            f"scene, one 128x128 depth tile per line (training.migration_data, cache v1); velocity jitter "
+            f"scene, one 128x128 depth tile per line (training.migration_data, cache v{CACHE_VERSION}: "
+            f"calibrated simulator, domain-randomised train/val lines); velocity jitter "
             f"{VELOCITY_JITTER:.0%}; validation: split 'val' (100 scenes, seeds 100000-100099)")
 
 
@@ -122,7 +149,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             idx = np.sort(order[step * args.batch:(step + 1) * args.batch])
             xb = torch.from_numpy(x_train[idx].astype(np.float32))
             yb = torch.from_numpy(y_train[idx].astype(np.float32))
-            xb, yb = augment(xb, yb, gen)
+            xb, yb = augment(xb, yb, gen, args.layers)
             loss = bce_dice_loss(net(xb), yb)
             optimiser.zero_grad()
             loss.backward()
@@ -142,6 +169,9 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         if metrics["val_iou"] > best["iou"]:
             best = {"iou": metrics["val_iou"], "epoch": epoch + 1}
             save(best_path, model, config, epoch + 1, args.seed, {"val": metrics, "history": history}, {})
+        if args.keep_epochs:  # each epoch kept, for model selection on the FDTD dev half (training.select_fdtd)
+            save(CHECKPOINTS / f"{args.name}_e{epoch + 1}.pt", model, config, epoch + 1, args.seed,
+                 {"val": metrics, "history": history}, {})
         save(last, model, config, epoch + 1, args.seed, {"val": metrics, "history": history},
              {"optimiser": optimiser.state_dict(), "scheduler": scheduler.state_dict(),
               "generator": gen.get_state(), "best": best, "history": history})
@@ -187,6 +217,9 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="only the first N scenes of each split")
     parser.add_argument("--name", default="migrationnet")
     parser.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True)
+    parser.add_argument("--layers", type=float, default=0.0,
+                        help="probability of adding non-pipe layer echoes to a training tile (augment)")
+    parser.add_argument("--keep-epochs", action="store_true", help="also keep every epoch's weights (…_eN.pt)")
     parser.add_argument("--init", type=Path, default=None, help="start from this checkpoint's weights")
     parser.add_argument("--calibrate", type=Path, default=None,
                         help="only pick the mask threshold on the validation split and store it in this checkpoint")

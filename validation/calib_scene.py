@@ -22,6 +22,7 @@ from gprbot.config import GprConfig
 from gprbot.gpr.dzt import read_dzt
 from gprbot.sim.forward import receiver_drift, simulate_bscan
 from gprbot.sim.scene import Pipe, Scene, Slab
+from gprbot.sim.variation import SignalVariation
 from validation.calib_measure import direct_window_ns, wavelet_corr
 
 FDTD_DATA = Path(__file__).resolve().parent / "fdtd" / "data"
@@ -76,13 +77,22 @@ def debye_of(name: str) -> tuple[float, float] | None:
     return next((s.concrete.debye for s in all_scenes() if s.name == name), None)
 
 
-def to_sim_scene(truth: dict[str, Any], debye: tuple[float, float] | None = None) -> Scene:
-    """Our scene: a slab under the line, each truth pipe and rebar a straight pipe along y crossing it."""
+FDTD_SOIL_EPS_R = 15.0  # the generator's "soil" (validation.fdtd.gprmax_input.EPS_SOIL)
+
+
+def _below_eps_r(truth: dict[str, Any]) -> float:
+    """What lies under the FDTD slab's bottom, as our slab's below_eps_r."""
+    return 1.0 if below_of(truth["name"]) == "air" else FDTD_SOIL_EPS_R
+
+
+def to_sim_scene(truth: dict[str, Any], debye: tuple[float, float] | None = None,
+                 below_eps_r: float = 15.0) -> Scene:
+    """Our scene: a slab under the line (over soil, or air: below_eps_r 1), each truth target a pipe along y."""
     xs = truth["trace_x_m"]
     x0, x1 = min(xs) - 1.0, max(xs) + 1.0
     thickness = truth["slab_bottom_m"] or HALF_SPACE_M
     slab = Slab((x1 - x0, 2.0 * HALF_LENGTH_M + 0.2), (x0, -HALF_LENGTH_M - 0.1), float(thickness),
-                float(truth["eps_r"]), loss_db_per_m(truth, debye))
+                float(truth["eps_r"]), loss_db_per_m(truth, debye), below_eps_r)
 
     def pipe(name: str, x: float, depth: float, radius: float, fill: str) -> Pipe:
         points = np.array([[x, -HALF_LENGTH_M, -depth], [x, HALF_LENGTH_M, -depth]])
@@ -103,17 +113,18 @@ def to_gpr_config(truth: dict[str, Any], samples: int) -> GprConfig:
 
 
 def render_ours(truth: dict[str, Any], samples: int, debye: tuple[float, float] | None = None,
-                seed: int = 0) -> NDArray[np.float64]:
+                seed: int = 0, variation: SignalVariation | None = None) -> NDArray[np.float64]:
     """Our B-scan (traces, samples) in mV at the truth's trace midpoints, without the receiver's wow and noise.
 
     The wow is a receiver artefact the FDTD has no counterpart of; it is the first draw from the generator
     in `simulate_bscan`, so the same draw from a second generator of the same seed removes it exactly.
+    A `variation` renders one point of the training data's domain randomisation instead of the default.
     """
     gpr = to_gpr_config(truth, samples)
     mid = np.zeros((len(truth["trace_x_m"]), 2))
     mid[:, 0] = truth["trace_x_m"]
-    scene = to_sim_scene(truth, debye)
-    bscan = simulate_bscan(scene, mid, gpr, np.random.default_rng(seed)).astype(np.float64)
+    scene = to_sim_scene(truth, debye, _below_eps_r(truth))
+    bscan = simulate_bscan(scene, mid, gpr, np.random.default_rng(seed), variation=variation).astype(np.float64)
     return bscan - receiver_drift(len(mid), gpr, np.random.default_rng(seed))
 
 

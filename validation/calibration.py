@@ -1,8 +1,10 @@
 """Our forward model against the gprMax FDTD scenes: B-scan correlation, apex times, amplitudes, flanks, wavelets.
 
-`python -m validation.calibration [--only NAME] [--out docs/eval/sim_vs_fdtd.md] [--png DIR]` renders each
-FDTD scene with `gprbot.sim` (see `validation.calib_scene`) and writes the residual as a markdown report.
-The text between the report's findings markers is kept when the report is rewritten.
+`python -m validation.calibration [--only NAME] [--half dev] [--out docs/eval/sim_vs_fdtd.md] [--png DIR]`
+renders each FDTD scene with `gprbot.sim` (see `validation.calib_scene`) and writes the residual as a
+markdown report. The text between the report's findings markers is kept when the report is rewritten.
+`--phase/--peak-factor/--footprint` render one point of the training data's domain randomisation
+(`gprbot.sim.variation`) instead of the default simulator, to check that its ranges cover the FDTD.
 """
 
 from __future__ import annotations
@@ -11,12 +13,13 @@ import argparse
 import math
 import statistics
 import subprocess
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gprbot.sim.variation import SignalVariation
 from validation import calib_measure as m
 from validation.calib_scene import below_of, debye_of, load_fdtd, picture, render_ours, scene_names, stones_of
 
@@ -41,6 +44,7 @@ class ReflectorRow:
     moveout: dict[float, float] = field(default_factory=dict)  # angle → Δ(t_flank − t_apex), ours − FDTD
     flank_amp: dict[float, float] = field(default_factory=dict)  # angle → (A_flank/A_apex)_ours / (..)_fdtd
     flank_amp_3d: dict[float, float] = field(default_factory=dict)  # the same, FDTD spreading turned 3D
+    multiple: tuple[float, float] = (math.nan, math.nan)  # surface multiple / primary at the apex: ours, FDTD
 
     @property
     def dt_apex(self) -> float:
@@ -69,11 +73,11 @@ class SceneResult:
     rows: list[ReflectorRow]
 
 
-def compare(name: str) -> SceneResult:
-    """Render scene `name` with our simulator and measure it against the FDTD B-scan."""
+def compare(name: str, variation: SignalVariation | None = None) -> SceneResult:
+    """Render scene `name` with our simulator (or one variation of it) and measure it against the FDTD B-scan."""
     fdtd_raw, truth = load_fdtd(name)
     debye = debye_of(name)
-    ours_raw = render_ours(truth, fdtd_raw.shape[1], debye)
+    ours_raw = render_ours(truth, fdtd_raw.shape[1], debye, variation=variation)
     dt, f = float(truth["dt_ns"]), float(truth["frequency_mhz"])
     period = 1e3 / f
     end = int(m.direct_window_ns(truth) / dt)
@@ -97,6 +101,11 @@ def compare(name: str) -> SceneResult:
         row.t_fdtd, af = m.pick(env_f[i], t0, 0.5 * period, dt)
         row.t_ours, ao = m.pick(env_o[i], t0, 0.5 * period, dt)
         row.amp_vs_direct = (ao / amp_dir_o) / (af / amp_dir_f)
+        if r.fill == "metal" and r.kind == "pipe":  # pipe → surface → pipe: one more two-way trip over the cover
+            t_mult = t0 + 2.0 * (r.depth_m - r.radius_m) / float(truth["velocity_m_per_ns"])
+            if t_mult < (fdtd_raw.shape[1] - 1) * dt:
+                mo, mf = m.pick(env_o[i], t_mult, 0.5 * period, dt)[1], m.pick(env_f[i], t_mult, 0.5 * period, dt)[1]
+                row.multiple = (mo / ao, mf / af)
         if first is None:
             first = (af, ao, travel)
             wf = m.window(fdtd_raw[i] - fdtd_raw.mean(0)[i], row.t_fdtd, period, dt)
@@ -207,6 +216,31 @@ def by_target_table(rows: list[ReflectorRow]) -> list[str]:
     return lines
 
 
+def residual_table(results: list[SceneResult]) -> list[str]:
+    """The residual in one row (medians): the figures each simulator fix is measured by."""
+    rows = [r for s in results for r in s.rows]
+    a1, a2 = m.ANGLES_DEG
+
+    def med(values: list[float], digits: int = 2) -> str:
+        return _f(_median(values), digits)
+
+    pvc = [r.amp_vs_direct for r in rows if r.what == "pipe pvc-air"]
+    metal = [r.amp_vs_direct for r in rows if r.what == "pipe metal"]
+    pvc_vs_metal = _median(pvc) / _median(metal) if pvc and metal else math.nan
+    log_amp = [math.log(r.amp_vs_direct) for r in rows if math.isfinite(r.amp_vs_direct) and r.amp_vs_direct > 0]
+    head = ["ncc", "ncc env", "ncc shifted", "shift ns", "apex corr", "Δt apex ns", "amp/direct O/F",
+            "std log amp/direct", "amp/first 3D O/F", f"flank {a1:g}° O/F", f"flank {a2:g}° O/F",
+            "multiple/primary O", "multiple/primary F", "pvc-air/metal O/F"]
+    line = [med([s.ncc for s in results]), med([s.ncc_env for s in results]),
+            med([s.ncc_shifted for s in results]), med([s.shift_ns for s in results], 3),
+            med([s.apex_corr for s in results]), med([r.dt_apex for r in rows], 3),
+            med([r.amp_vs_direct for r in rows]), _f(float(np.std(log_amp)) if log_amp else math.nan),
+            med([r.amp_vs_first_3d for r in rows]), med([r.flank_amp.get(a1, math.nan) for r in rows]),
+            med([r.flank_amp.get(a2, math.nan) for r in rows]), med([r.multiple[0] for r in rows], 3),
+            med([r.multiple[1] for r in rows], 3), _f(pvc_vs_metal)]
+    return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head), "| " + " | ".join(line) + " |"]
+
+
 def commit() -> str:
     """The short commit of the working tree, marked dirty when it has changes."""
     try:
@@ -226,14 +260,14 @@ def kept_findings(path: Path) -> str:
     return "(findings to be written)"
 
 
-def report(results: list[SceneResult], findings: str, sha: str) -> str:
+def report(results: list[SceneResult], findings: str, sha: str, what: str = "") -> str:
     """The markdown report: findings, per-scene table, per-target medians, per-reflector table."""
     rows = [r for s in results for r in s.rows]
     parts = [
         "# gprbot's forward model against the gprMax FDTD scenes",
         "",
         f"Generated by `python -m validation.calibration` at commit `{sha}` over {len(results)} FDTD scenes "
-        f"({len(rows)} targets). O = ours (`gprbot.sim`), F = FDTD (gprMax 4.0.1, 2D TMz). "
+        f"({len(rows)} targets){what}. O = ours (`gprbot.sim`), F = FDTD (gprMax 4.0.1, 2D TMz). "
         "Both B-scans on one time axis (aligned on the transmit instant = the source's peak); our receiver "
         "wow and noise removed. `ncc`: normalised correlation after removing the mean trace and scaling to "
         "unit rms; `ncc env`: the same on the envelopes; `shift`: the best single global time shift "
@@ -246,6 +280,10 @@ def report(results: list[SceneResult], findings: str, sha: str) -> str:
         FINDINGS[0],
         findings,
         FINDINGS[1],
+        "",
+        "## Residual (medians over the scenes and targets below)",
+        "",
+        *residual_table(results),
         "",
         "## Per scene",
         "",
@@ -269,17 +307,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", help="one scene name")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="the markdown report (default: %(default)s)")
     ap.add_argument("--png", type=Path, help="also write FDTD|ours pictures into this folder")
+    ap.add_argument("--half", choices=("dev", "test"), help="only the scenes of one half of the split")
+    ap.add_argument("--phase", type=float, default=0.0, help="render ours with this wavelet phase rotation (deg)")
+    ap.add_argument("--peak-factor", type=float, default=1.0, help="… and the wavelet peaking at this × f")
+    ap.add_argument("--footprint", type=float, default=None, help="… and this footprint power (default: ours)")
     args = ap.parse_args(argv)
     names = [args.only] if args.only else scene_names()
+    if args.half:
+        names = [n for n in names if load_fdtd(n)[1]["half"] == args.half]
+    variation = SignalVariation(phase_deg=args.phase, peak_factor=args.peak_factor)
+    if args.footprint is not None:
+        variation = replace(variation, footprint_power=args.footprint)
+    what = "" if variation.is_identity else (
+        f", ours with the wavelet rotated {variation.phase_deg:g}°, peaking at {variation.peak_factor:g} f, "
+        f"footprint cos^{variation.footprint_power:g}")
+    what += f", {args.half} half only" if args.half else ""
     results = []
     for name in names:
-        results.append(compare(name))
+        results.append(compare(name, None if variation.is_identity else variation))
         s = results[-1]
         print(f"{name}: ncc {s.ncc:.2f} (env {s.ncc_env:.2f}), shift {s.shift_ns:+.3f} ns -> {s.ncc_shifted:.2f}")
         if args.png:
             picture(name, args.png)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(report(results, kept_findings(args.out), commit()))
+    args.out.write_text(report(results, kept_findings(args.out), commit(), what))
+    print("\n".join(residual_table(results)))
     print(f"wrote {args.out}")
     return 0
 

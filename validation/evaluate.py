@@ -12,12 +12,12 @@ import argparse
 import statistics
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from validation.cases import Case, fdtd_cases, real_cases
-from validation.methods import METHODS, Outcome
+from validation.methods import METHODS, Method, Outcome
 from validation.scoring import Score, match, score
 
 DEFAULT_REPORT = Path(__file__).resolve().parent / "REPORT.md"
@@ -34,11 +34,11 @@ class Row:
     score: Score
 
 
-def run_case(case: Case, method: str, mode: str) -> Row:
+def run_case(case: Case, method: str, mode: str, methods: Mapping[str, Method] = METHODS) -> Row:
     """Interpret a case and score it."""
     bscan, gpr = case.load()
     velocity = case.velocity if mode == "given" else None
-    outcome = METHODS[method](bscan, gpr, velocity)
+    outcome = methods[method](bscan, gpr, velocity)
     return Row(case, method, mode, outcome, score(outcome.found, case.targets, case.tolerance_m))
 
 

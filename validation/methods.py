@@ -73,8 +73,11 @@ def run_legacy(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
     return Outcome(found, section.velocity_m_per_ns, section.velocity_estimated, seconds)
 
 
-def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
-    """MigrationNet on the section migrated at the given velocity (else the chain's estimate)."""
+def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model: str | None = None) -> Outcome:
+    """MigrationNet (the shipped model, or the ONNX file `model`) on the section at the given velocity.
+
+    Without a velocity it uses the chain's estimate.
+    """
     from gprbot.gpr.preprocess import preprocess
     from gprbot.infer.pipeline import migrationnet_interpreter
 
@@ -84,7 +87,7 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Ou
         velocity, note, estimated = chain.velocity, "velocity from the chain", chain.velocity_estimated
     start = time.perf_counter()
     try:
-        net = migrationnet_interpreter(InterpretationConfig().migrationnet_model, 2)
+        net = migrationnet_interpreter(model or InterpretationConfig().migrationnet_model, 2)
         section = net.interpret(preprocess(bscan, gpr), gpr, _interp_config(bscan, velocity), velocity)
     except GprbotError as exc:
         return Outcome((), velocity, False, time.perf_counter() - start, f"failed: {exc}")

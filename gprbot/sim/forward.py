@@ -30,11 +30,10 @@ from gprbot.sim.reflectors import (
     slab_bottom_coefficient,
 )
 from gprbot.sim.scene import Pipe, Scene
+from gprbot.sim.variation import SignalVariation, apply_gain, varied_config, wavelet_kernel
 
 FloatArray = NDArray[np.float64]
 
-# The Ricker wavelet is below 1e-9 of its peak beyond 1.5 periods from its centre.
-_WAVELET_HALF_WIDTH_PERIODS = 1.5
 _MIN_SURFACE_PATH_M = 0.3  # near field: the surface echo of a ground-coupled antenna is a fraction of the direct wave
 
 
@@ -44,11 +43,14 @@ def simulate_bscan(
     gpr: GprConfig,
     rng: np.random.Generator,
     offset_dir: NDArray[np.float64] | tuple[float, float] = (1.0, 0.0),
+    variation: SignalVariation | None = None,
 ) -> NDArray[np.float32]:
     """Traces (N, gpr.samples) in mV recorded with the antenna midpoint at the TRUE positions mid_xy (N, 2).
 
     `offset_dir` is the horizontal unit vector from Rx to Tx in the site frame. Sample k lies at
-    k * gpr.dt_ns - gpr.pre_trigger_ns after the transmit instant.
+    k * gpr.dt_ns - gpr.pre_trigger_ns after the transmit instant. `variation` (training data only)
+    changes the wavelet, footprint, gain, noise, clutter and height; interpret its line with
+    `varied_config(gpr, variation)`.
     """
     mid = np.asarray(mid_xy, dtype=np.float64)
     if mid.ndim != 2 or mid.shape[1] != 2:
@@ -59,18 +61,23 @@ def simulate_bscan(
     direction = direction / float(np.hypot(direction[0], direction[1]))
     if len(mid) == 0:
         return np.zeros((0, gpr.samples), dtype=np.float32)
+    variation = variation or SignalVariation()
+    gpr = varied_config(gpr, variation)
 
     events = Events(len(mid))
     _add_air_and_surface_waves(events, scene, mid, gpr)
     reflectors = (*scene.pipes, *scene.rebar_bars())
     _add_slab_bottom(events, scene, reflectors, mid, gpr, direction)
-    pipe_events(events, reflectors, scene.slab, mid, gpr, direction)
+    pipe_events(events, reflectors, scene.slab, mid, gpr, direction, variation.footprint_power)
     if scene.clutter is not None:
-        clutter_events(events, scene.clutter, scene.slab, mid, gpr, direction)
-    bscan = render_events(events, gpr)
+        clutter_events(events, scene.clutter, scene.slab, mid, gpr, direction, variation.footprint_power,
+                       variation.clutter_gain)
+    bscan = render_events(events, gpr, variation)
     bscan += receiver_drift(len(mid), gpr, rng)
     if gpr.noise_mv > 0:
         bscan += rng.normal(0.0, gpr.noise_mv, size=bscan.shape)
+    if not variation.is_identity:
+        bscan = apply_gain(bscan, gpr, variation)
     return bscan.astype(np.float32)
 
 
@@ -104,17 +111,21 @@ def _add_slab_bottom(
     attenuation = 10.0 ** (-slab.loss_db_per_m * 2.0 * slab.thickness_m / 20.0)
     n = math.sqrt(slab.eps_r)
     transmission = 4.0 * n / (1.0 + n) ** 2
-    amplitude = SOURCE_MV_M * transmission * slab_bottom_coefficient(slab.eps_r) * attenuation / path
+    amplitude = SOURCE_MV_M * transmission * slab_bottom_coefficient(slab) * attenuation / path
     shadow = shadow_factor(shadowing, mid, gpr.centre_frequency_mhz, v)
     events.add(t, amplitude * shadow * on_slab)
 
 
-def render_events(events: Events, gpr: GprConfig) -> FloatArray:
-    """Lay the events as fractional-sample spikes on each trace and convolve them with the Ricker wavelet."""
+def render_events(events: Events, gpr: GprConfig, variation: SignalVariation | None = None) -> FloatArray:
+    """Lay the events as fractional-sample spikes on each trace and convolve them with the wavelet.
+
+    The wavelet is the Ricker at the nominal frequency, or the one a (training-only) variation describes.
+    """
     n_traces = events.n_traces
     rows, times, amplitudes = events.flat()
     dt = gpr.dt_ns
-    half = math.ceil(_WAVELET_HALF_WIDTH_PERIODS / (gpr.centre_frequency_mhz * 1e-3 * dt))
+    variation = variation or SignalVariation()
+    half = math.ceil(variation.half_width_periods() / (gpr.centre_frequency_mhz * 1e-3 * dt))
     padded = gpr.samples + 2 * half
     position = (times + gpr.pre_trigger_ns) / dt + half
     keep = (position >= 0.0) & (position < padded - 1) & (amplitudes != 0.0)
@@ -130,7 +141,10 @@ def render_events(events: Events, gpr: GprConfig) -> FloatArray:
     n_fft = scipy.fft.next_fast_len(padded, real=True)
     lags = np.arange(n_fft)
     lags = np.where(lags > n_fft // 2, lags - n_fft, lags)
-    kernel = np.where(np.abs(lags) <= half, ricker(lags * dt, gpr.centre_frequency_mhz), 0.0)
+    if variation.is_identity:
+        kernel = np.where(np.abs(lags) <= half, ricker(lags * dt, gpr.centre_frequency_mhz), 0.0)
+    else:
+        kernel = wavelet_kernel(lags * dt, gpr.centre_frequency_mhz, variation, half, dt)
     spectrum = scipy.fft.rfft(spikes, n_fft, axis=1) * scipy.fft.rfft(kernel)
     traces = scipy.fft.irfft(spectrum, n_fft, axis=1)
     return np.ascontiguousarray(traces[:, half : half + gpr.samples])

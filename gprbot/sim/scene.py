@@ -25,13 +25,14 @@ _TOLERANCE_M = 1e-6
 
 @dataclass(frozen=True)
 class Slab:
-    """The concrete slab: footprint size and lower-left corner (m), thickness, permittivity, loss."""
+    """The concrete slab: footprint size and lower-left corner (m), thickness, permittivity, loss, what is below."""
 
     size_m: tuple[float, float]
     origin_m: tuple[float, float]
     thickness_m: float
     eps_r: float
     loss_db_per_m: float
+    below_eps_r: float = 15.0  # under the bottom face: moist soil (15); 1 for air under a suspended slab
 
     def contains_xy(self, x: float, y: float) -> bool:
         """Whether the horizontal point (x, y) lies on the slab's footprint."""
@@ -176,7 +177,7 @@ def _string(value: Any, path: str) -> str:
 
 
 def _parse_slab(value: Any, path: str) -> Slab:
-    d = _mapping(value, path, ("size_m", "origin_m", "thickness_m", "eps_r", "loss_db_per_m"), ())
+    d = _mapping(value, path, ("size_m", "origin_m", "thickness_m", "eps_r", "loss_db_per_m"), ("below_eps_r",))
     size = _numbers(d["size_m"], f"{path}.size_m", 2)
     if min(size) <= 0:
         raise ConfigError(f"{path}.size_m: expected two positive numbers, got {d['size_m']!r}")
@@ -189,6 +190,7 @@ def _parse_slab(value: Any, path: str) -> Slab:
         thickness_m=_number(d["thickness_m"], f"{path}.thickness_m", positive=True),
         eps_r=eps_r,
         loss_db_per_m=_number(d["loss_db_per_m"], f"{path}.loss_db_per_m", non_negative=True),
+        below_eps_r=_number(d.get("below_eps_r", 15.0), f"{path}.below_eps_r", positive=True),
     )
 
 
