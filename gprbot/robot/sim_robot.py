@@ -1,6 +1,7 @@
 """The simulated robot: device emulators fed by a simulated world, so the daemon runs its real drivers.
 
-- Motors: a RoboClawEmulator on a pty; the MotorDriver talks RoboClaw packet serial to it.
+- Motors: a RoboClawEmulator on a pty, answering from its own thread (as a controller on USB answers
+  whatever the host's loop is doing); the MotorDriver talks RoboClaw packet serial to it.
 - GPR: a GprSdkEmulator on loopback whose traces come from the forward model at the robot's TRUE
   antenna position at the instant each trace is triggered.
 - RealSense D435i: a software device (drivers/realsense/emulator) that the RealsenseDriver opens as it
@@ -96,7 +97,7 @@ class SimRobot:
 
     async def start(self) -> Config:
         """Serve the emulators; the config with motors.port and gpr_device pointed at them."""
-        port = self.motors.serve_pty()
+        port = self.motors.serve_pty(threaded=True)  # a controller answers whatever the host's loop is doing
         await self.gpr.start()
         self._t, self._angles = self.clock(), self.wheel_angles()
         self._remember(self._t)
@@ -117,7 +118,7 @@ class SimRobot:
 
     def wheel_angles(self) -> NDArray[np.float64]:
         """The emulated motors' shaft angles now (rad), in wheel_map order (exact: closed-form motor model)."""
-        counts = np.array([self.motors.encoder_position(a, c) for a, c in self.cfg.motors.wheel_map])
+        counts = np.array(self.motors.encoder_positions(self.cfg.motors.wheel_map))
         return counts * (2 * math.pi / self.cfg.motors.encoder_counts_per_rev)
 
     def advance(self) -> float:
