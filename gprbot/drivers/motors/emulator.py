@@ -88,6 +88,9 @@ class RoboClawEmulator:
         self._noise_length = 6
         self.stalled = False
         self._link: PtyLink | None = None
+        self._motion_step_s: float | None = None  # see record_motion
+        self._motion_t = now
+        self._motion: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=history)
 
     @property
     def command_log(self) -> list[MotorCommandEvent]:
@@ -168,6 +171,19 @@ class RoboClawEmulator:
         self._command_log.append(MotorCommandEvent(t, ctl.address, channel, float(speed), "serial"))
 
     def _advance(self, now: float) -> None:
+        """Bring every motor to `now` (through the motion record's grid, when recording)."""
+        step = self._motion_step_s
+        if step is not None:
+            while self._motion_t + step <= now:
+                self._motion_t += step
+                self._advance_to(self._motion_t)
+                self._motion.append((self._motion_t, self._positions()))
+        self._advance_to(now)
+
+    def _positions(self) -> tuple[float, ...]:
+        return tuple(m.position for ctl in self._controllers.values() for m in ctl.motors.values())
+
+    def _advance_to(self, now: float) -> None:
         """Bring every motor to `now`, tripping the failsafe on the way if the line went quiet."""
         for ctl in self._controllers.values():
             if self._last_rx is None or ctl.failsafe_tripped or ctl.serial_timeout_s <= 0:
@@ -206,6 +222,34 @@ class RoboClawEmulator:
         """The encoder positions of several motors at one instant (counts, unwrapped, fractional)."""
         with self._lock:
             return [self._motor(address, channel).position for address, channel in motors]
+
+    def record_motion(self, step_s: float) -> None:
+        """From now on keep every motor's position on a grid of `step_s` (for the simulator's truth)."""
+        with self._lock:
+            self._motion_step_s, self._motion_t = step_s, self._clock()
+            self._motion.clear()
+
+    def motion_since(self, t: float, motors: Iterable[tuple[int, int]]) -> list[tuple[float, list[float]]]:
+        """(time, positions in counts of `motors`) on the record's grid after t, then at the clock's now.
+
+        The motors move between the host's requests whatever the host's loop does, and this is how
+        they moved: the simulator integrates the true pose (and makes its IMU samples) from it, so a
+        stalled loop changes when the truth is computed, never what it is."""
+        wanted = list(motors)
+        with self._lock:
+            now = self._clock()
+            self._advance(now)
+            keys = [(a, c) for a, ctl in self._controllers.items() for c in ctl.motors]
+            index = [keys.index(m) for m in wanted]
+            out: list[tuple[float, list[float]]] = []
+            for tm, positions in reversed(self._motion):  # newest first: only the few since t are read
+                if tm <= t:
+                    break
+                out.append((tm, [positions[i] for i in index]))
+            out.reverse()
+            if now > t and (not out or out[-1][0] < now):
+                out.append((now, [self._controllers[a].motors[c].position for a, c in wanted]))
+            return out
 
     def set_encoder_position(self, address: int, channel: int, counts: float) -> None:
         """Move an encoder to `counts` (e.g. near the 32-bit wrap) without moving the motor."""
