@@ -63,10 +63,14 @@ def thread_cpu_s() -> dict[str, float]:
     return out
 
 
-def errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """ATE RMS (cm, horizontal) at 10 Hz and the final |yaw error| (deg) of an estimator."""
+def errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray,
+           window: tuple[float, float] | None = None) -> tuple[float, float]:
+    """ATE RMS (cm, horizontal) at 10 Hz and the final |yaw error| (deg) of an estimator (within `window`)."""
     stamps = np.array([p.t for p in poses])
-    t = np.arange(max(truth_t[0], stamps[0]), min(truth_t[-1], stamps[-1]), 0.1)
+    lo, hi = max(truth_t[0], stamps[0]), min(truth_t[-1], stamps[-1])
+    if window is not None:
+        lo, hi = max(lo, window[0]), min(hi, window[1])
+    t = np.arange(lo, hi, 0.1)
     est = interpolate_poses(poses, t)
     xy = np.stack([p.position[:2] for p in est])
     true_xy = np.column_stack([np.interp(t, truth_t, truth[:, 0]), np.interp(t, truth_t, truth[:, 1])])
@@ -185,6 +189,13 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
     fused_ate, fused_yaw = table["fused (IMU + VO + wheels), the daemon's"]
     base_ate, base_yaw = table["IMU + wheels (same filter, no VO)"]
     print(f"fused / IMU+wheels: ATE {fused_ate / base_ate:.2f}, yaw drift {fused_yaw / max(base_yaw, 1e-9):.2f}")
+    per_line = []
+    for line, spans in sorted(run.windows.items()):
+        spans = [(a, b) for a, b in spans if b > a + 0.2]
+        if spans:
+            ate_line, _ = errors(daemon_poses, t_ts, tr, (spans[0][0], spans[-1][1]))
+            per_line.append(f"{line}: {ate_line:.2f}")
+    print(f"fused ATE per line (cm, the line's own span): {', '.join(per_line)}")
     print(f"offline re-run of the filter on the daemon's inputs gives identical poses: {identical}")
     window = inputs[inputs0:inputs1]
     print(f"filter: {stats}")

@@ -227,7 +227,8 @@ class RobotRuntime:
                 except DriverError as exc:
                     log.warning("encoder read failed: %s", exc)
                 else:
-                    self.fusion.submit(encoders.wheel_speeds())
+                    if encoders.coherent:  # speeds read too far apart mix instants (replay skips them too)
+                        self.fusion.submit(encoders.wheel_speeds())
                     self.recorder.append(encoders, encoders.t)
             else:
                 # waiting for the driver to reconnect (with backoff) is not a hang: keep beating

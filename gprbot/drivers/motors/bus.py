@@ -5,11 +5,12 @@ until it completes, the per-attempt timeout passes or the CRC fails; then it ret
 last attempt it raises `LinkError`; the driver decides what a failure means (fault, or a clear
 start-up error). Stops take the line ahead of every queued request (`urgent=True`).
 
-A timeout counts only time in which the loop was listening: a wait that ends well past its deadline
-means the loop was busy elsewhere (a loaded machine, a long callback), and the reply may be queued
-right behind us — with an emulator on the same loop, not even written yet. Such an attempt listens
-again (at most `MAX_LATE_LISTENS` times) instead of calling a live controller silent; on a loop that
-runs on time a silent controller is still detected after (1 + retries) × timeout.
+A timeout counts only time in which the loop was listening: a wait that ends past its deadline may
+have been spent with the loop busy elsewhere (a loaded machine, a long callback), and the reply may be
+queued right behind us — with an emulator on the same loop, not even written yet. So each attempt
+listens a short grace past its deadline, and again while those graces end late (bounded), instead of
+calling a live controller silent; on a loop that runs on time a silent controller is still detected
+after (1 + retries) × timeout × (1 + GRACE_FRACTION), which `safety` holds within the stop bound.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from gprbot.errors import DriverError, ProtocolError
 
 T = TypeVar("T")
 LATE_S = 0.003  # a wait that ends this long past its deadline was not listening (epoll rounds up to 1 ms)
-MAX_LATE_LISTENS = 2  # fresh listens an attempt gets when its waits end late; bounds a starved attempt
+MAX_LATE_LISTENS = 2  # more graces an attempt gets when its waits end late; bounds a starved attempt
+GRACE_FRACTION = 0.25  # each attempt listens this fraction of its timeout past the deadline (see _listener)
 
 
 class LinkError(Exception):
@@ -198,22 +200,30 @@ class PacketBus:
             acks += len(data)
 
     def _listener(self) -> Callable[[], Awaitable[bytes]]:
-        """Reads for one attempt, sharing its deadline; TimeoutError once the device had its time in silence."""
+        """Reads for one attempt, sharing its deadline; TimeoutError once the device had its time in silence.
+
+        Its time ends with a short grace listen past the deadline: a reply can be on its way through
+        the line (a pty's or USB's delivery) or queued behind us in a busy loop pass, and with an
+        emulator on this loop even its writing waits for a pass. A grace that itself ends late (the
+        loop still busy) is followed by another, at most `MAX_LATE_LISTENS` more."""
         loop = asyncio.get_running_loop()
         deadline = loop.time() + self.timeout_s
-        late_listens = 0
+        grace_s = GRACE_FRACTION * self.timeout_s
+        graces = 0
 
         async def listen() -> bytes:
-            nonlocal deadline, late_listens
+            nonlocal deadline, graces
             while True:
                 remaining = deadline - loop.time()
                 data = await self.port.read(remaining) if remaining > 0 else b""
                 if data:
                     return data
-                if loop.time() - deadline <= LATE_S or late_listens >= MAX_LATE_LISTENS:
-                    raise TimeoutError
-                late_listens += 1  # the loop was elsewhere when the deadline passed: listen once more
-                self.late_listens += 1
-                deadline = loop.time() + self.timeout_s
+                late = loop.time() - deadline > LATE_S
+                if graces == 0 or (late and graces <= MAX_LATE_LISTENS):
+                    graces += 1
+                    self.late_listens += graces > 1
+                    deadline = loop.time() + grace_s
+                    continue
+                raise TimeoutError
 
         return listen

@@ -153,25 +153,26 @@ class MotorDriver:
                 raise result
 
     async def read_encoders(self) -> WheelEncoders:
-        """Read each wheel's count and speed; t is the mean host time at which the requests left.
+        """Read every wheel's speed, back to back, then every count; t is when the speed requests left.
 
         Not when the replies were read: on a busy loop that is later by however long the loop was
         elsewhere, and the filter would place the wheels' motion late (the controller samples what it
-        reports when the request reaches it, within a millisecond of its writing)."""
+        reports when the request reaches it, within a millisecond of its writing). The speeds go first
+        and together because the filter takes them as one instant; how far apart they left is kept."""
         n = len(self.cfg.wheel_map)
         counts = np.zeros(n, dtype=np.int64)
         speeds = np.zeros(n, dtype=np.float64)
         stamps = []
         for i, (address, channel) in enumerate(self.cfg.wheel_map):
-            count, sent = await self._read_timed(rc.read_encoder(address, channel), replies.EncoderCount)
-            stamps.append(sent)
             speed, sent = await self._read_timed(rc.read_speed(address, channel), replies.EncoderSpeed)
             stamps.append(sent)
-            counts[i] = self._unwrappers[i].update(count.count)
             speeds[i] = speed.counts_per_s / self._counts_per_rad
+        for i, (address, channel) in enumerate(self.cfg.wheel_map):
+            count = await self._read(rc.read_encoder(address, channel), replies.EncoderCount)
+            counts[i] = self._unwrappers[i].update(count.count)
         t = float(np.mean(stamps))
         self.health_tracker.message(t)
-        return WheelEncoders(t=t, counts=counts, speeds=speeds)
+        return WheelEncoders(t=t, counts=counts, speeds=speeds, speed_spread_s=max(stamps) - min(stamps))
 
     async def reset_encoders(self) -> None:
         """Zero the encoder counters of every controller (and the unwrapped counts)."""
