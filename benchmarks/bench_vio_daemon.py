@@ -141,6 +141,7 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
             while run.state in ("starting", "running", "paused"):
                 await asyncio.sleep(0.1)
         bad1, reconnects1 = motors.health().errors, motors.reconnects
+        late_listens = sum(bus.late_listens for bus in motors._buses.values())
         cpu1, wall1, proc1 = thread_cpu_s(), time.monotonic(), time.process_time()
         vo1, fusion1, render1 = rt.vo.health().cpu_s, rt.fusion.cpu_s, sim.camera.render_cpu_s
         frames1, pushes1 = rt.vo.health().frames, rt.fusion.messages
@@ -203,7 +204,8 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
         print(f"starved: the GIL held {starve[0] * 1e3:.0f} ms every {starve[1] * 1e3:.0f} ms while surveying")
     wheel_t = np.array([m.t for m in window if isinstance(m, WheelSpeeds)])
     gaps = np.diff(wheel_t) if wheel_t.size > 1 else np.zeros(1)
-    print(f"motor link: {bad1 - bad0} bad attempts, {reconnects1 - reconnects0} faults (reconnects); wheel "
+    print(f"motor link: {bad1 - bad0} bad attempts, {reconnects1 - reconnects0} faults (reconnects), {late_listens} "
+          f"replies waited for past a late deadline; wheel "
           f"readings {wheel_t.size}, longest gap {gaps.max() * 1e3:.0f} ms, gaps > 100 ms {int(np.sum(gaps > 0.1))}; "
           f"interrupted lines {run.interruptions}")
     print(f"VO: {vo_health}")
