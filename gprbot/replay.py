@@ -112,8 +112,7 @@ def continue_filter(snapshot: FusionSnapshot, messages: Iterable[Any], cfg: Conf
         poses.extend(fuser.push(message))
     for message in messages:
         if isinstance(message, encoders.WheelEncoders):
-            if message.coherent:  # as the daemon: speeds read too far apart are not one instant
-                poses.extend(fuser.push(message.wheel_speeds()))
+            poses.extend(fuser.push(message.wheel_speeds()))
         elif isinstance(message, ImuSample | VoMeasurement):
             poses.extend(fuser.push(message))
     return poses
@@ -128,8 +127,6 @@ def fuse_poses(messages: Iterable[Any], cfg: Config) -> list[Pose]:
     poses: list[Pose] = []
     for message in items:
         if isinstance(message, encoders.WheelEncoders):
-            if not message.coherent:  # as the daemon: speeds read too far apart are not one instant
-                continue
             message = message.wheel_speeds()
         if isinstance(message, realsense.RawRgbdFrame):
             depth = message.depth.astype(np.float32) * np.float32(message.depth_scale)

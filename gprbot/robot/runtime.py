@@ -227,8 +227,7 @@ class RobotRuntime:
                 except DriverError as exc:
                     log.warning("encoder read failed: %s", exc)
                 else:
-                    if encoders.coherent:  # speeds read too far apart mix instants (replay skips them too)
-                        self.fusion.submit(encoders.wheel_speeds())
+                    self.fusion.submit(encoders.wheel_speeds())
                     self.recorder.append(encoders, encoders.t)
             else:
                 # waiting for the driver to reconnect (with backoff) is not a hang: keep beating

@@ -12,28 +12,20 @@ from numpy.typing import NDArray
 
 from gprbot.messages import WheelSpeeds, register_message
 
-# The three speeds of a reading must describe one encoder poll (20 ms) to be one twist of the base: read
-# further apart on a busy loop, while the wheels speed up or stop, they mix instants and the filter
-# took their mixture for a sideways motion (a 4 cm/s phantom vy, 16 cm off in 3 s).
-MAX_SPEED_SPREAD_S = 0.02
-
 
 @dataclass(frozen=True)
 class WheelEncoders:
     """Wheel encoder readings: counts (int64, unwrapped past the 32-bit wrap) and speeds (rad/s).
 
     `speed_spread_s`: how far apart the three speed requests left (0 in logs from before it existed).
+    The filter takes the three speeds as one instant; on a busy loop they are not, and while the wheels
+    speed up or stop their mixture reads as a motion the base did not make (see the issue 14 note).
     """
 
     t: float
     counts: NDArray[np.int64]
     speeds: NDArray[np.float64]
     speed_spread_s: float = 0.0
-
-    @property
-    def coherent(self) -> bool:
-        """Whether the speeds describe one instant (the filter's wheel update takes only those)."""
-        return self.speed_spread_s <= MAX_SPEED_SPREAD_S
 
     def wheel_speeds(self) -> WheelSpeeds:
         """The measured speeds as the WheelSpeeds message that wheel odometry consumes."""
