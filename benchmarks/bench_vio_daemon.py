@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import dataclasses
 import math
 import os
@@ -33,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.machine import machine_description
+from benchmarks.starvation import GilStarver
 from gprbot.config import load_config
 from gprbot.daemon import serve
 from gprbot.fusion.baselines import vo_only, wheel_only
@@ -60,10 +62,14 @@ def thread_cpu_s() -> dict[str, float]:
     return out
 
 
-def errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """ATE RMS (cm, horizontal) at 10 Hz and the final |yaw error| (deg) of an estimator."""
+def errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray,
+           window: tuple[float, float] | None = None) -> tuple[float, float]:
+    """ATE RMS (cm, horizontal) at 10 Hz and the final |yaw error| (deg) of an estimator (within `window`)."""
     stamps = np.array([p.t for p in poses])
-    t = np.arange(max(truth_t[0], stamps[0]), min(truth_t[-1], stamps[-1]), 0.1)
+    lo, hi = max(truth_t[0], stamps[0]), min(truth_t[-1], stamps[-1])
+    if window is not None:
+        lo, hi = max(lo, window[0]), min(hi, window[1])
+    t = np.arange(lo, hi, 0.1)
     est = interpolate_poses(poses, t)
     xy = np.stack([p.position[:2] for p in est])
     true_xy = np.column_stack([np.interp(t, truth_t, truth[:, 0]), np.interp(t, truth_t, truth[:, 1])])
@@ -72,8 +78,9 @@ def errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray) -> tuple[f
     return ate, abs(math.degrees(math.atan2(math.sin(yaw_err), math.cos(yaw_err))))
 
 
-async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None = None) -> None:
-    """Drive the survey in the daemon, then print the table."""
+async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None = None,
+                starve: tuple[float, float] | None = None) -> None:
+    """Drive the survey in the daemon (optionally with the GIL held `starve` = (block, period) s), then print."""
     cfg = load_config()
     survey = dataclasses.replace(cfg.survey, lines=lines, length_m=length_m, speed_m_s=speed_m_s)
     inputs: list[Any] = []
@@ -124,9 +131,16 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
         vo0, fusion0, render0 = rt.vo.health().cpu_s, rt.fusion.cpu_s, sim.camera.render_cpu_s
         frames0, pushes0 = rt.vo.health().frames, rt.fusion.messages
         sim0, emitted0, inputs0 = sim.loop_cpu_s, sim.imu_emitted, len(inputs)
-        run = rt.survey.start(survey)
-        while run.state in ("starting", "running", "paused"):
-            await asyncio.sleep(0.1)
+        starver = GilStarver(*starve) if starve is not None else contextlib.nullcontext()
+        motors = rt.motors
+        assert motors is not None
+        bad0, reconnects0 = motors.health().errors, motors.reconnects
+        with starver:
+            run = rt.survey.start(survey)
+            while run.state in ("starting", "running", "paused"):
+                await asyncio.sleep(0.1)
+        bad1, reconnects1 = motors.health().errors, motors.reconnects
+        late_listens = sum(bus.late_listens for bus in motors._buses.values())
         cpu1, wall1, proc1 = thread_cpu_s(), time.monotonic(), time.process_time()
         vo1, fusion1, render1 = rt.vo.health().cpu_s, rt.fusion.cpu_s, sim.camera.render_cpu_s
         frames1, pushes1 = rt.vo.health().frames, rt.fusion.messages
@@ -175,10 +189,25 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
     fused_ate, fused_yaw = table["fused (IMU + VO + wheels), the daemon's"]
     base_ate, base_yaw = table["IMU + wheels (same filter, no VO)"]
     print(f"fused / IMU+wheels: ATE {fused_ate / base_ate:.2f}, yaw drift {fused_yaw / max(base_yaw, 1e-9):.2f}")
+    per_line = []
+    for line, spans in sorted(run.windows.items()):
+        spans = [(a, b) for a, b in spans if b > a + 0.2]
+        if spans:
+            ate_line, _ = errors(daemon_poses, t_ts, tr, (spans[0][0], spans[-1][1]))
+            per_line.append(f"{line}: {ate_line:.2f}")
+    print(f"fused ATE per line (cm, the line's own span): {', '.join(per_line)}")
     print(f"offline re-run of the filter on the daemon's inputs gives identical poses: {identical}")
-    print(f"filter: {stats}")
-    print(f"VO: {vo_health}")
     window = inputs[inputs0:inputs1]
+    print(f"filter: {stats}")
+    if starve is not None:
+        print(f"starved: the GIL held {starve[0] * 1e3:.0f} ms every {starve[1] * 1e3:.0f} ms while surveying")
+    wheel_t = np.array([m.t for m in window if isinstance(m, WheelSpeeds)])
+    gaps = np.diff(wheel_t) if wheel_t.size > 1 else np.zeros(1)
+    print(f"motor link: {bad1 - bad0} bad attempts, {reconnects1 - reconnects0} faults (reconnects), {late_listens} "
+          f"replies waited for past a late deadline; wheel "
+          f"readings {wheel_t.size}, longest gap {gaps.max() * 1e3:.0f} ms, gaps > 100 ms {int(np.sum(gaps > 0.1))}; "
+          f"interrupted lines {run.interruptions}")
+    print(f"VO: {vo_health}")
     gyro_n = sum(isinstance(m, ImuSample) and m.gyro is not None for m in window)
     accel_n = sum(isinstance(m, ImuSample) and m.accel is not None for m in window)
     imu_drops = sum(rs_health[s].drops for s in ("gyro", "accel") if s in rs_health)
@@ -227,8 +256,10 @@ def main() -> None:
     parser.add_argument("--length", type=float, default=2.0)
     parser.add_argument("--speed", type=float, default=0.1)
     parser.add_argument("--save", help="pickle the filter's inputs, the truth and the daemon's poses here")
+    parser.add_argument("--starve", nargs=2, type=float, metavar=("BLOCK_S", "PERIOD_S"),
+                        help="hold the GIL BLOCK_S every PERIOD_S while surveying (a loaded machine, repeatably)")
     args = parser.parse_args()
-    asyncio.run(bench(args.lines, args.length, args.speed, args.save))
+    asyncio.run(bench(args.lines, args.length, args.speed, args.save, tuple(args.starve) if args.starve else None))
 
 
 if __name__ == "__main__":

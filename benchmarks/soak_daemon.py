@@ -239,6 +239,8 @@ def report(minutes: float, out: dict[str, list[float]], memory: list[tuple[float
         "abuser_connections": counts, "daemon_alive_at_end": alive, "exit_status_after_sigterm": exit_status,
         "daemon_log_lines": len(daemon_log.splitlines()),
         "daemon_tracebacks": daemon_log.count("Traceback"),
+        # the log lives in a temporary directory: keep what each traceback said (its last lines)
+        "daemon_traceback_tails": [block.strip().splitlines()[-3:] for block in daemon_log.split("Traceback")[1:6]],
     }
     print(json.dumps(figures, indent=2))
     print("status at the end:\n  " + "\n  ".join(str(line) for line in out.get("status", [])))

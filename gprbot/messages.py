@@ -144,16 +144,21 @@ class VoHealth:
 
 @dataclass(frozen=True)
 class WheelEncoders:
-    """Wheel encoder readings: counts (int64, unwrapped past the 32-bit wrap) and speeds (rad/s)."""
+    """Wheel encoder readings: counts (int64, unwrapped past the 32-bit wrap) and speeds (rad/s).
+
+    `speed_spread_s`: how far apart the three speed requests left (0 in logs from before it existed).
+    The filter takes the three speeds as one instant; on a busy loop they are not, and while the wheels
+    speed up or stop their mixture reads as a motion the base did not make (see the issue 14 note).
+    """
 
     t: float
     counts: NDArray[np.int64]
     speeds: NDArray[np.float64]
+    speed_spread_s: float = 0.0
 
     def wheel_speeds(self) -> WheelSpeeds:
         """The measured speeds as the WheelSpeeds message that wheel odometry consumes."""
         return WheelSpeeds(t=self.t, speeds=self.speeds.copy())
-
 
 
 

@@ -159,7 +159,9 @@ class Supervisor:
             expected = now + self.tick_s
             self._credit_frozen_time(self.loop_lag_s)
             self.check(now)
-            if not self.ready and all(r.state == "running" for r in self._records.values()):
+            # READY=1 once the robot's own tasks run: a non-critical one (web console, worker watch) in
+            # backoff is reported in STATUS= and retried, but must not keep systemd's start pending
+            if not self.ready and all(r.state == "running" for r in self._records.values() if r.spec.critical):
                 self.ready = True
                 self.notifier.ready(self.status_line())
             if self.healthy and ping_every is not None and now - last_ping >= ping_every:

@@ -68,6 +68,35 @@ def test_watchdog_interval_follows_systemd_environment() -> None:
 
 
 # ----- the supervisor -------------------------------------------------------------------------------
+async def test_ready_is_not_held_back_by_a_failing_non_critical_task(notify_socket: socket.socket) -> None:
+    async def steady(beat: Callable[[], None]) -> None:
+        while True:
+            beat()
+            await asyncio.sleep(0.01)
+
+    async def broken(beat: Callable[[], None]) -> None:
+        raise OSError("port 8780 in use")
+
+    notifier = SdNotifier(notify_socket.getsockname())
+    supervisor = Supervisor([TaskSpec("motion", steady, watchdog_s=0.5),
+                             TaskSpec("web", broken, watchdog_s=0.5, critical=False)],
+                            notifier, tick_s=0.02, backoff_s=(0.05, 1.0))
+    stop = asyncio.Event()
+    supervisor.start()
+    runner = asyncio.create_task(supervisor.run(stop))
+    await asyncio.sleep(0.3)
+    stop.set()
+    await runner
+    await supervisor.stop()
+    notifier.close()
+    messages = received(notify_socket)
+    ready = [i for i, m in enumerate(messages) if m.startswith("READY=1")]
+    backoff = [i for i, m in enumerate(messages) if m.startswith("STATUS=") and "web backoff" in m]
+    assert len(ready) == 1 and backoff
+    assert ready[0] < backoff[0]  # at once: before, READY=1 waited until the web task happened to be relaunched
+    assert {h.name: h for h in supervisor.health()}["web"].restarts >= 1
+
+
 async def test_supervisor_restarts_a_crashing_task_with_backoff_and_notifies(
         notify_socket: socket.socket, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("WATCHDOG_USEC", "200000")

@@ -1,6 +1,7 @@
 """The simulated robot: device emulators fed by a simulated world, so the daemon runs its real drivers.
 
-- Motors: a RoboClawEmulator on a pty; the MotorDriver talks RoboClaw packet serial to it.
+- Motors: a RoboClawEmulator on a pty, answering from its own thread (as a controller on USB answers
+  whatever the host's loop is doing); the MotorDriver talks RoboClaw packet serial to it.
 - GPR: a GprSdkEmulator on loopback whose traces come from the forward model at the robot's TRUE
   antenna position at the instant each trace is triggered.
 - RealSense D435i: a software device (drivers/realsense/emulator) that the RealsenseDriver opens as it
@@ -43,6 +44,7 @@ from gprbot.survey import start_pose
 
 GRAVITY_M_S2 = 9.80665
 WHEEL_RADIUS_ERROR = (0.012, -0.009, 0.004)  # true radius / nominal - 1 for wheels 0, 1, 2
+MIN_STEP_S = 1e-4  # the truth's shortest integration step
 
 
 class SimRobot:
@@ -65,8 +67,12 @@ class SimRobot:
         self.pose = np.array(start_pose(cfg), dtype=np.float64)  # true (x, y, yaw) of the base
         self.velocity = np.zeros(2)  # true site-frame velocity (m/s)
         self.omega = 0.0
+        self.motors.record_motion(1.0 / self.imu_model.gyro_rate_hz)  # the truth's (and the IMU's) time grid
         self._t = clock()
         self._angles = self.wheel_angles()
+        # (end time, ω, yaw, site-frame acceleration) of each truth step, for the IMU samples inside it
+        self._steps: deque[tuple[float, float, float, NDArray[np.float64]]] = deque(maxlen=8000)
+        self._step_dt = 1.0 / self.imu_model.gyro_rate_hz
         self.traces_served = 0
         self.imu_emitted = 0  # IMU samples pushed into the emulated D435i
         self.loop_cpu_s = 0.0  # CPU the simulator spends on the event loop (IMU synthesis, GPR forward model)
@@ -74,7 +80,7 @@ class SimRobot:
         self.slip = np.zeros(3)  # how much faster than the ground under it each wheel turns (fraction)
         self._slip_wander = np.zeros(3)
         self._slip_events: list[tuple[float, int]] = []  # (end time, wheel)
-        self._history: deque[tuple[float, float, float, float]] = deque(maxlen=2000)  # (t, x, y, yaw): 20 s
+        self._history: deque[tuple[float, float, float, float]] = deque(maxlen=8000)  # (t, x, y, yaw): 20 s
         self._history_lock = threading.Lock()
         rs = cfg.realsense
         mount = CameraMount(cfg.mount.camera_position_m, cfg.mount.camera_pitch_down_deg)
@@ -85,7 +91,7 @@ class SimRobot:
 
     async def start(self) -> Config:
         """Serve the emulators; the config with motors.port and gpr_device pointed at them."""
-        port = self.motors.serve_pty()
+        port = self.motors.serve_pty(threaded=True)  # a controller answers whatever the host's loop is doing
         await self.gpr.start()
         self._t, self._angles = self.clock(), self.wheel_angles()
         self._remember(self._t)
@@ -106,33 +112,40 @@ class SimRobot:
 
     def wheel_angles(self) -> NDArray[np.float64]:
         """The emulated motors' shaft angles now (rad), in wheel_map order (exact: closed-form motor model)."""
-        counts = np.array([self.motors.encoder_position(a, c) for a, c in self.cfg.motors.wheel_map])
+        counts = np.array(self.motors.encoder_positions(self.cfg.motors.wheel_map))
         return counts * (2 * math.pi / self.cfg.motors.encoder_counts_per_rev)
 
     def advance(self) -> float:
         """Integrate the true pose up to now from the wheels' turns; the time reached.
 
-        The turn of each wheel since the last call (exact, whatever the call rate) over its true radius
-        gives the body's displacement; an encoder reset (a jump no motor can make) falls back to speed × dt.
+        In the emulator's 2.5 ms steps of how the motors actually turned, so the truth (and the IMU
+        made from it) is the same however late this runs — a stalled loop catches up on the same path.
+        The turn of each wheel over a step over its true radius gives the body's displacement; an
+        encoder reset (a jump no motor can make) falls back to speed × dt.
         """
-        now = self.clock()
-        dt = now - self._t
-        if dt <= 0.0:
-            return self._t
-        angles = self.wheel_angles()
+        scale = 2 * math.pi / self.cfg.motors.encoder_counts_per_rev
+        for t, counts in self.motors.motion_since(self._t, self.cfg.motors.wheel_map):
+            self._step(t, np.asarray(counts) * scale)
+        return self._t
+
+    def _step(self, t: float, angles: NDArray[np.float64]) -> None:
+        dt = t - self._t
+        if dt < MIN_STEP_S:  # left to the next step: speeds from a sliver of a step are rounding noise
+            return
         turned = angles - self._angles
         limit = 2.0 * self.cfg.motors.max_wheel_speed_rad_s * dt + 1e-3
         if np.any(np.abs(turned) > limit):
             turned = self.wheel_speeds() * dt
-        self._update_slip(now, dt, turned)
+        self._update_slip(t, dt, turned)
         twist = self.kinematics.body_twist(turned * self.radius_scale / (1.0 + self.slip) / dt)
-        previous = self.pose[:2].copy()
+        previous, last_velocity = self.pose[:2].copy(), self.velocity
         self.pose = integrate_body_twist(self.pose, twist, dt)
         self.velocity = (self.pose[:2] - previous) / dt
         self.omega = float(twist[2])
-        self._t, self._angles = now, angles
-        self._remember(now)
-        return now
+        accel = (self.velocity - last_velocity) / (0.5 * (dt + self._step_dt))  # between the steps' mean speeds
+        self._steps.append((t, self.omega, float(self.pose[2]), accel))
+        self._t, self._angles, self._step_dt = t, angles, dt
+        self._remember(t)
 
     def _update_slip(self, now: float, dt: float, turned: NDArray[np.float64]) -> None:
         """Each wheel's slip: a wandering fraction (Ornstein–Uhlenbeck) plus rare events; none when parked."""
@@ -215,35 +228,34 @@ class SimRobot:
         model = self.imu_model
         gyro_dt, accel_dt = 1.0 / model.gyro_rate_hz, 1.0 / model.accel_rate_hz
         start = self.advance()
+        self._steps.clear()
         next_gyro, next_accel = start, start
-        last_velocity, last_t = self.velocity.copy(), start
         while True:
             await asyncio.sleep(period_s)
             began = time.thread_time()
-            now = self.advance()
-            span = max(now - last_t, 1e-6)
-            accel_world = (self.velocity - last_velocity) / span
-            last_velocity, last_t = self.velocity.copy(), now
+            self.advance()
             batch: list[ImuSample] = []
-            while next_gyro <= now:
-                batch.append(ImuSample(next_gyro, gyro=self._gyro_sample()))
-                next_gyro += gyro_dt
-            while next_accel <= now:
-                batch.append(ImuSample(next_accel, accel=self._accel_sample(accel_world)))
-                next_accel += accel_dt
+            while self._steps:  # each sample from the truth step it falls in, not from the truth now
+                end, omega, yaw, accel_world = self._steps.popleft()
+                while next_gyro <= end:
+                    batch.append(ImuSample(next_gyro, gyro=self._gyro_sample(omega)))
+                    next_gyro += gyro_dt
+                while next_accel <= end:
+                    batch.append(ImuSample(next_accel, accel=self._accel_sample(accel_world, yaw)))
+                    next_accel += accel_dt
             batch.sort(key=lambda m: m.t)
             self.loop_cpu_s += time.thread_time() - began
             yield batch
 
-    def _gyro_sample(self) -> NDArray[np.float64]:
+    def _gyro_sample(self, omega: float) -> NDArray[np.float64]:
         m = self.imu_model
-        true = np.array([0.0, 0.0, self.omega])
+        true = np.array([0.0, 0.0, omega])
         noisy = true + self._gyro_bias + self._rng.normal(0.0, m.gyro_noise_density * math.sqrt(m.gyro_rate_hz), 3)
         return np.asarray(np.round(noisy / m.gyro_lsb) * m.gyro_lsb)
 
-    def _accel_sample(self, accel_world: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _accel_sample(self, accel_world: NDArray[np.float64], yaw: float) -> NDArray[np.float64]:
         m = self.imu_model
-        c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
+        c, s = math.cos(yaw), math.sin(yaw)
         body = np.array([c * accel_world[0] + s * accel_world[1], -s * accel_world[0] + c * accel_world[1],
                          GRAVITY_M_S2])  # specific force on a level slab: gravity's reaction is +z
         noisy = body + self._accel_bias + self._rng.normal(

@@ -4,11 +4,19 @@ Every exchange discards stale input, writes the packet and feeds the answer to a
 until it completes, the per-attempt timeout passes or the CRC fails; then it retries. After the
 last attempt it raises `LinkError`; the driver decides what a failure means (fault, or a clear
 start-up error). Stops take the line ahead of every queued request (`urgent=True`).
+
+A timeout counts only time in which the loop was listening: a wait that ends past its deadline may
+have been spent with the loop busy elsewhere (a loaded machine, a long callback), and the reply may be
+queued right behind us — with an emulator on the same loop, not even written yet. So each attempt
+listens a short grace past its deadline, and again while those graces end late (bounded), instead of
+calling a live controller silent; on a loop that runs on time a silent controller is still detected
+after (1 + retries) × timeout × (1 + GRACE_FRACTION), which `safety` holds within the stop bound.
 """
 
 from __future__ import annotations
 
 import asyncio
+import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
 from typing import TypeVar
@@ -19,6 +27,9 @@ from gprbot.drivers.serial_port import AsyncSerialPort
 from gprbot.errors import DriverError, ProtocolError
 
 T = TypeVar("T")
+LATE_S = 0.003  # a wait that ends this long past its deadline was not listening (epoll rounds up to 1 ms)
+MAX_LATE_LISTENS = 2  # more graces an attempt gets when its waits end late; bounds a starved attempt
+GRACE_FRACTION = 0.25  # each attempt listens this fraction of its timeout past the deadline (see _listener)
 
 
 class LinkError(Exception):
@@ -57,7 +68,7 @@ class PriorityLock:
         except asyncio.CancelledError:
             if waiter.done() and not waiter.cancelled():
                 self.release()  # ownership was handed to us just as we were cancelled
-            else:
+            elif waiter in self._waiters:  # release() may already have popped it (it skips cancelled ones)
                 self._waiters.remove(waiter)
             raise
 
@@ -81,13 +92,16 @@ class PacketBus:
         timeout_s: float,
         retries: int,
         on_bad_attempt: Callable[[str], None] = lambda text: None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.url = url
         self.port = AsyncSerialPort(url, baudrate)
         self.timeout_s = timeout_s
         self.retries = retries
         self._on_bad_attempt = on_bad_attempt
+        self._clock = clock
         self._lock = PriorityLock()
+        self.late_listens = 0  # waits that ended late and were listened again (a busy loop, not the device)
 
     async def open(self) -> None:
         """Open the serial port (DriverError if it cannot be opened)."""
@@ -104,6 +118,15 @@ class PacketBus:
 
         `still_wanted` is asked once the line is ours; if it says no, SupersededError is raised unsent.
         """
+        return (await self.exchange_timed(request, urgent=urgent, still_wanted=still_wanted))[0]
+
+    async def exchange_timed(
+        self, request: Request, *, urgent: bool = False, still_wanted: Callable[[], bool] | None = None
+    ) -> tuple[Reply, float]:
+        """`exchange`, with the clock time at which the answered attempt's packet was written.
+
+        The controller samples what it reports when the packet reaches it, so this — not when the loop
+        got round to the reply — is the reading's time."""
         await self._lock.acquire(urgent)
         try:
             if still_wanted is not None and not still_wanted():
@@ -153,33 +176,54 @@ class PacketBus:
             corrupt=corrupt,
         )
 
-    async def _attempt(self, request: Request) -> Reply:
+    async def _attempt(self, request: Request) -> tuple[Reply, float]:
         self.port.discard_input()
         self.port.write(request.encode())
+        sent = self._clock()
         parser = ReplyParser(request)
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.timeout_s
+        listen = self._listener()
         while True:
-            remaining = deadline - loop.time()
-            data = await self.port.read(remaining) if remaining > 0 else b""
-            if not data:
-                raise TimeoutError
-            reply = parser.feed(data)
+            reply = parser.feed(await listen())
             if reply is not None:
-                return reply
+                return reply, sent
 
     async def _attempt_acks(self, requests: Sequence[Request]) -> None:
         self.port.discard_input()
         for request in requests:
             self.port.write(request.encode())
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.timeout_s
+        listen = self._listener()
         acks = 0
         while acks < len(requests):
-            remaining = deadline - loop.time()
-            data = await self.port.read(remaining) if remaining > 0 else b""
-            if not data:
-                raise TimeoutError
+            data = await listen()
             if any(byte != ACK for byte in data):
                 raise ProtocolError(f"stop: expected {len(requests)} acknowledgements 0xFF, got {data.hex()}")
             acks += len(data)
+
+    def _listener(self) -> Callable[[], Awaitable[bytes]]:
+        """Reads for one attempt, sharing its deadline; TimeoutError once the device had its time in silence.
+
+        Its time ends with a short grace listen past the deadline: a reply can be on its way through
+        the line (a pty's or USB's delivery) or queued behind us in a busy loop pass, and with an
+        emulator on this loop even its writing waits for a pass. A grace that itself ends late (the
+        loop still busy) is followed by another, at most `MAX_LATE_LISTENS` more."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.timeout_s
+        grace_s = GRACE_FRACTION * self.timeout_s
+        graces = 0
+
+        async def listen() -> bytes:
+            nonlocal deadline, graces
+            while True:
+                remaining = deadline - loop.time()
+                data = await self.port.read(remaining) if remaining > 0 else b""
+                if data:
+                    return data
+                late = loop.time() - deadline > LATE_S
+                if graces == 0 or (late and graces <= MAX_LATE_LISTENS):
+                    graces += 1
+                    self.late_listens += graces > 1
+                    deadline = loop.time() + grace_s
+                    continue
+                raise TimeoutError
+
+        return listen

@@ -57,7 +57,7 @@ class MotorDriver:
         self._addresses = sorted({address for address, _ in cfg.wheel_map})
         port_of = {a: (ports or {}).get(a, cfg.port) for a in self._addresses}
         self._buses = {
-            url: PacketBus(url, cfg.baudrate, cfg.command_timeout_s, cfg.retries, self._bad_attempt)
+            url: PacketBus(url, cfg.baudrate, cfg.command_timeout_s, cfg.retries, self._bad_attempt, clock)
             for url in sorted(set(port_of.values()))
         }
         self._bus_of = {a: self._buses[port_of[a]] for a in self._addresses}
@@ -153,20 +153,26 @@ class MotorDriver:
                 raise result
 
     async def read_encoders(self) -> WheelEncoders:
-        """Read each wheel's count and speed; t is the mean host time at which the counts arrived."""
+        """Read every wheel's speed, back to back, then every count; t is when the speed requests left.
+
+        Not when the replies were read: on a busy loop that is later by however long the loop was
+        elsewhere, and the filter would place the wheels' motion late (the controller samples what it
+        reports when the request reaches it, within a millisecond of its writing). The speeds go first
+        and together because the filter takes them as one instant; how far apart they left is kept."""
         n = len(self.cfg.wheel_map)
         counts = np.zeros(n, dtype=np.int64)
         speeds = np.zeros(n, dtype=np.float64)
         stamps = []
         for i, (address, channel) in enumerate(self.cfg.wheel_map):
-            count = await self._read(rc.read_encoder(address, channel), replies.EncoderCount)
-            stamps.append(self._clock())
-            speed = await self._read(rc.read_speed(address, channel), replies.EncoderSpeed)
-            counts[i] = self._unwrappers[i].update(count.count)
+            speed, sent = await self._read_timed(rc.read_speed(address, channel), replies.EncoderSpeed)
+            stamps.append(sent)
             speeds[i] = speed.counts_per_s / self._counts_per_rad
+        for i, (address, channel) in enumerate(self.cfg.wheel_map):
+            count = await self._read(rc.read_encoder(address, channel), replies.EncoderCount)
+            counts[i] = self._unwrappers[i].update(count.count)
         t = float(np.mean(stamps))
         self.health_tracker.message(t)
-        return WheelEncoders(t=t, counts=counts, speeds=speeds)
+        return WheelEncoders(t=t, counts=counts, speeds=speeds, speed_spread_s=max(stamps) - min(stamps))
 
     async def reset_encoders(self) -> None:
         """Zero the encoder counters of every controller (and the unwrapped counts)."""
@@ -182,17 +188,25 @@ class MotorDriver:
 
     # ----- the request path and faults ------------------------------------------------------------
     async def _read(self, request: rc.Request, kind: type[R]) -> R:
-        reply = await self._transact(request)
+        return (await self._read_timed(request, kind))[0]
+
+    async def _read_timed(self, request: rc.Request, kind: type[R]) -> tuple[R, float]:
+        reply, sent = await self._transact_timed(request)
         if not isinstance(reply, kind):
             raise DriverError(f"{request.describe()}: unexpected reply {reply!r}")  # a protocol-table bug
-        return reply
+        return reply, sent
 
     async def _transact(
         self, request: rc.Request, still_wanted: Callable[[], bool] | None = None
     ) -> replies.Reply:
+        return (await self._transact_timed(request, still_wanted))[0]
+
+    async def _transact_timed(
+        self, request: rc.Request, still_wanted: Callable[[], bool] | None = None
+    ) -> tuple[replies.Reply, float]:
         self._require_connected()
         try:
-            return await self._bus_of[request.address].exchange(request, still_wanted=still_wanted)
+            return await self._bus_of[request.address].exchange_timed(request, still_wanted=still_wanted)
         except LinkError as exc:
             raise await self._fault(str(exc)) from exc
 

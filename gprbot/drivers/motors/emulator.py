@@ -5,7 +5,8 @@ packets like the device, answers only its own addresses, drives each motor throu
 counts encoders, and honours the serial-timeout failsafe (command 14): when no byte arrives for the
 set time both motors of every controller are commanded to 0, at exactly last-byte + timeout.
 Fault injection: dropped replies, corrupted CRCs, noisy replies, a stalled controller, an unplugged
-cable. `serve_pty()` exposes it to a driver as a serial device.
+cable. `serve_pty()` exposes it to a driver as a serial device, served on the loop or (`threaded=True`)
+in a thread of its own; one lock makes the controllers' state safe to read from either side.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import math
 import random
 import struct
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
@@ -77,7 +79,8 @@ class RoboClawEmulator:
         self._framer = RequestFramer()
         self._rng = random.Random(seed)
         self._last_rx: float | None = None
-        self.command_log: deque[MotorCommandEvent] = deque(maxlen=history)
+        self._command_log: deque[MotorCommandEvent] = deque(maxlen=history)
+        self._lock = threading.RLock()  # the link's thread answers the host while the simulator reads motors
         self.packets_handled = 0
         self._drop = 0
         self._corrupt = 0
@@ -85,10 +88,23 @@ class RoboClawEmulator:
         self._noise_length = 6
         self.stalled = False
         self._link: PtyLink | None = None
+        self._motion_step_s: float | None = None  # see record_motion
+        self._motion_t = now
+        self._motion: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=history)
+
+    @property
+    def command_log(self) -> list[MotorCommandEvent]:
+        """The speed targets applied so far (oldest first; a copy, safe while the link's thread runs)."""
+        with self._lock:
+            return list(self._command_log)
 
     # ----- sans-IO core ---------------------------------------------------------------------
     def receive(self, data: bytes) -> bytes:
         """Bytes from the host at clock(); returns the bytes the controllers send back."""
+        with self._lock:
+            return self._receive(data)
+
+    def _receive(self, data: bytes) -> bytes:
         now = self._clock()
         self._advance(now)
         if self.stalled or not data:
@@ -152,9 +168,22 @@ class RoboClawEmulator:
 
     def _drive(self, ctl: _Controller, t: float, channel: int, speed: int, accel: int | None) -> None:
         ctl.motors[channel].command(t, speed, accel)
-        self.command_log.append(MotorCommandEvent(t, ctl.address, channel, float(speed), "serial"))
+        self._command_log.append(MotorCommandEvent(t, ctl.address, channel, float(speed), "serial"))
 
     def _advance(self, now: float) -> None:
+        """Bring every motor to `now` (through the motion record's grid, when recording)."""
+        step = self._motion_step_s
+        if step is not None:
+            while self._motion_t + step <= now:
+                self._motion_t += step
+                self._advance_to(self._motion_t)
+                self._motion.append((self._motion_t, self._positions()))
+        self._advance_to(now)
+
+    def _positions(self) -> tuple[float, ...]:
+        return tuple(m.position for ctl in self._controllers.values() for m in ctl.motors.values())
+
+    def _advance_to(self, now: float) -> None:
         """Bring every motor to `now`, tripping the failsafe on the way if the line went quiet."""
         for ctl in self._controllers.values():
             if self._last_rx is None or ctl.failsafe_tripped or ctl.serial_timeout_s <= 0:
@@ -164,7 +193,7 @@ class RoboClawEmulator:
                 ctl.failsafe_tripped = True
                 for channel, motor in ctl.motors.items():
                     motor.command(trip, 0.0)
-                    self.command_log.append(MotorCommandEvent(trip, ctl.address, channel, 0.0, "failsafe"))
+                    self._command_log.append(MotorCommandEvent(trip, ctl.address, channel, 0.0, "failsafe"))
         for ctl in self._controllers.values():
             for motor in ctl.motors.values():
                 motor.advance(now)
@@ -176,20 +205,57 @@ class RoboClawEmulator:
 
     def motor_speed(self, address: int, channel: int) -> float:
         """The shaft speed now, in rad/s."""
-        return self._motor(address, channel).speed * 2 * math.pi / self.counts_per_rev
+        with self._lock:
+            return self._motor(address, channel).speed * 2 * math.pi / self.counts_per_rev
 
     def commanded_speed(self, address: int, channel: int) -> float:
         """The speed target now (after any failsafe), in rad/s."""
-        return self._motor(address, channel).target * 2 * math.pi / self.counts_per_rev
+        with self._lock:
+            return self._motor(address, channel).target * 2 * math.pi / self.counts_per_rev
 
     def encoder_position(self, address: int, channel: int) -> float:
         """The encoder position now in counts (unwrapped, fractional)."""
-        return self._motor(address, channel).position
+        with self._lock:
+            return self._motor(address, channel).position
+
+    def encoder_positions(self, motors: Iterable[tuple[int, int]]) -> list[float]:
+        """The encoder positions of several motors at one instant (counts, unwrapped, fractional)."""
+        with self._lock:
+            return [self._motor(address, channel).position for address, channel in motors]
+
+    def record_motion(self, step_s: float) -> None:
+        """From now on keep every motor's position on a grid of `step_s` (for the simulator's truth)."""
+        with self._lock:
+            self._motion_step_s, self._motion_t = step_s, self._clock()
+            self._motion.clear()
+
+    def motion_since(self, t: float, motors: Iterable[tuple[int, int]]) -> list[tuple[float, list[float]]]:
+        """(time, positions in counts of `motors`) on the record's grid after t, then at the clock's now.
+
+        The motors move between the host's requests whatever the host's loop does, and this is how
+        they moved: the simulator integrates the true pose (and makes its IMU samples) from it, so a
+        stalled loop changes when the truth is computed, never what it is."""
+        wanted = list(motors)
+        with self._lock:
+            now = self._clock()
+            self._advance(now)
+            keys = [(a, c) for a, ctl in self._controllers.items() for c in ctl.motors]
+            index = [keys.index(m) for m in wanted]
+            out: list[tuple[float, list[float]]] = []
+            for tm, positions in reversed(self._motion):  # newest first: only the few since t are read
+                if tm <= t:
+                    break
+                out.append((tm, [positions[i] for i in index]))
+            out.reverse()
+            if now > t and (not out or out[-1][0] < now):
+                out.append((now, [self._controllers[a].motors[c].position for a, c in wanted]))
+            return out
 
     def set_encoder_position(self, address: int, channel: int, counts: float) -> None:
         """Move an encoder to `counts` (e.g. near the 32-bit wrap) without moving the motor."""
-        self._motor(address, channel).position = counts
-        self._controllers[address].wraps_at_last_read[channel] = math.floor(counts) // _WRAP
+        with self._lock:
+            self._motor(address, channel).position = counts
+            self._controllers[address].wraps_at_last_read[channel] = math.floor(counts) // _WRAP
 
     def serial_timeout_s(self, address: int) -> float:
         """The failsafe timeout the host set on a controller (0: off)."""
@@ -238,10 +304,10 @@ class RoboClawEmulator:
         return bytes(self._rng.randrange(256) for _ in range(length))
 
     # ----- the serial line ---------------------------------------------------------------------------
-    def serve_pty(self, link_path: str | Path | None = None) -> str:
-        """Serve on a new pty (on the running loop); returns the device path (or `link_path`, a symlink)."""
+    def serve_pty(self, link_path: str | Path | None = None, *, threaded: bool = False) -> str:
+        """Serve on a new pty (on the running loop, or in a thread); returns the device path (or `link_path`)."""
         if self._link is None:
-            self._link = PtyLink(self.receive, link_path)
+            self._link = PtyLink(self.receive, link_path, threaded=threaded)
         return self._link.open()
 
     def unplug(self) -> None:

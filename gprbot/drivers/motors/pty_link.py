@@ -3,6 +3,11 @@
 The driver opens the slave side (or a stable symlink to it, like /dev/serial/by-id/...) with
 pyserial; the handler sees the bytes the driver writes and its return value is written back.
 `close()` hangs the line up — the driver's next read fails as it does when a USB cable is pulled.
+
+The handler runs on the asyncio loop by default, or — `threaded=True`, as the simulated robot serves
+its controllers — in a thread of its own, so that the emulated device answers within a millisecond
+whatever the loop is doing, as a real controller on USB does (on the loop, a busy loop delays the
+device's answer itself, which no real device does).
 """
 
 from __future__ import annotations
@@ -10,6 +15,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import select
+import threading
 import tty
 from collections.abc import Callable
 from pathlib import Path
@@ -18,10 +25,14 @@ from gprbot.errors import DriverError
 
 
 class PtyLink:
-    """A pty whose master end is driven by `handler(bytes) -> reply bytes` on the asyncio loop."""
+    """A pty whose master end is driven by `handler(bytes) -> reply bytes` on the loop (or its own thread)."""
 
-    def __init__(self, handler: Callable[[bytes], bytes], link_path: str | Path | None = None) -> None:
+    def __init__(self, handler: Callable[[bytes], bytes], link_path: str | Path | None = None, *,
+                 threaded: bool = False) -> None:
         self._handler = handler
+        self._threaded = threaded
+        self._thread: threading.Thread | None = None
+        self._wake: tuple[int, int] | None = None  # a pipe that tells the thread to stop
         self._link_path = Path(link_path) if link_path is not None else None
         self._master: int | None = None
         self._slave: int | None = None
@@ -44,8 +55,14 @@ class PtyLink:
         os.set_blocking(master, False)
         self._master, self._slave = master, slave
         self.slave_name = os.ttyname(slave)
-        self._loop = asyncio.get_running_loop()
-        self._loop.add_reader(master, self._on_readable)
+        if self._threaded:
+            self._wake = os.pipe()
+            self._thread = threading.Thread(target=self._serve, args=(master, self._wake[0]),
+                                            name="pty-link", daemon=True)
+            self._thread.start()
+        else:
+            self._loop = asyncio.get_running_loop()
+            self._loop.add_reader(master, self._on_readable)
         if self._link_path is None:
             return self.slave_name
         tmp = self._link_path.with_name(self._link_path.name + ".new")
@@ -66,7 +83,13 @@ class PtyLink:
         """Hang up: remove the reader, close both ends and the symlink."""
         if self._master is None:
             return
-        if self._loop is not None and not self._loop.is_closed():
+        if self._thread is not None and self._wake is not None:
+            os.write(self._wake[1], b"x")
+            self._thread.join()
+            for end in self._wake:
+                os.close(end)
+            self._thread, self._wake = None, None
+        elif self._loop is not None and not self._loop.is_closed():
             self._loop.remove_reader(self._master)
         for fd in (self._master, self._slave):
             if fd is not None:
@@ -76,6 +99,14 @@ class PtyLink:
         if self._link_path is not None:
             with contextlib.suppress(FileNotFoundError):
                 self._link_path.unlink()
+
+    def _serve(self, master: int, wake: int) -> None:
+        """The link's thread: answer what arrives on the master end until woken to stop."""
+        while True:
+            readable, _, _ = select.select([master, wake], [], [])
+            if wake in readable:
+                return
+            self._on_readable()
 
     def _on_readable(self) -> None:
         if self._master is None:

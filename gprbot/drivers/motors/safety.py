@@ -1,8 +1,9 @@
 """The motors' safety budget: settings that cannot stop the wheels within 100 ms of a fault are refused.
 
 Two stops bound the time from a fault to "all wheels commanded to 0":
-* a controller that stops answering is detected after (1 + retries) × command_timeout_s, counted from
-  the next request — up to one control period after the fault — and the driver then writes the stops;
+* a controller that stops answering is detected after (1 + retries) × command_timeout_s (each attempt
+  with its short grace listen, `bus.GRACE_FRACTION`), counted from the next request — up to one
+  control period after the fault — and the driver then writes the stops;
 * a pulled cable (or a hung host) leaves only each controller's own serial timeout (command 14),
   which stops it failsafe_timeout_s after the last byte it received.
 """
@@ -10,6 +11,7 @@ Two stops bound the time from a fault to "all wheels commanded to 0":
 from __future__ import annotations
 
 from gprbot.config import CONTROL_PERIOD_S, MotorsConfig
+from gprbot.drivers.motors.bus import GRACE_FRACTION
 from gprbot.drivers.motors.protocol import FIRST_ADDRESS, LAST_ADDRESS
 from gprbot.errors import ConfigError
 
@@ -36,10 +38,10 @@ def check_motors_config(cfg: MotorsConfig) -> None:
             f"motors.failsafe_timeout_s: {cfg.failsafe_timeout_s} s; it is the only stop when the cable "
             f"is pulled, so it must be 0.1 s (the controller counts in 100 ms steps and 0 disables it)"
         )
-    detection = (1 + cfg.retries) * cfg.command_timeout_s
+    detection = (1 + cfg.retries) * cfg.command_timeout_s * (1 + GRACE_FRACTION)
     if detection + CONTROL_PERIOD_S > FAULT_STOP_BOUND_S + 1e-9:
         raise ConfigError(
-            f"motors.command_timeout_s × (1 + motors.retries) = {detection:.3f} s: a silent controller is "
-            f"detected too late to stop within {FAULT_STOP_BOUND_S} s; keep it <= "
-            f"{FAULT_STOP_BOUND_S - CONTROL_PERIOD_S:.2f} s (e.g. 0.02 s and 2 retries)"
+            f"motors.command_timeout_s × (1 + motors.retries) × {1 + GRACE_FRACTION:g} (each attempt's grace) = "
+            f"{detection:.3f} s: a silent controller is detected too late to stop within {FAULT_STOP_BOUND_S} s; "
+            f"keep it <= {FAULT_STOP_BOUND_S - CONTROL_PERIOD_S:.2f} s (e.g. 0.02 s and 2 retries)"
         )
