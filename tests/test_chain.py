@@ -155,17 +155,3 @@ def test_velocity_voters_leave_out_echoes() -> None:
     assert _echo_of(0.33, 7.12, 0.375, 3.77)  # the surface multiple, pulled 4.5 cm aside
     assert not _echo_of(0.60, 7.0, 0.40, 3.5)  # a neighbour at twice the time, 20 cm away
     assert not _echo_of(0.40, 3.0, 0.40, 3.5)  # earlier than the stronger one: not its echo
-
-
-def test_an_antenna_far_closer_than_a_wavelength_is_timed_as_ground_coupled() -> None:
-    # Straight rays from the footprint (the data of an antenna on the ground), configured 5 mm up at 900 MHz
-    # (a 70th of the air wavelength): the chain times it as ground-coupled, says so, and finds the pipe.
-    b = synthetic_bscan([SyntheticTarget(1.0, 0.12, 0.04, 1.0)], v_m_per_ns=V, centre_frequency_mhz=900.0,
-                        n_traces=200, spacing_m=0.01, samples=512, dt_ns=0.025, t0_ns=1.0, antenna_height_m=0.0,
-                        tx_rx_offset_m=0.06, noise=0.01, direct_wave=3.0)
-    low = replace(GPR, antenna_height_m=0.005)
-    assert prepare(replace(b, t0_ns=math.nan), low).ground_coupled
-    assert not prepare(replace(b, t0_ns=math.nan), GPR).ground_coupled  # 2 cm: a sixteenth of it
-    result = interpret(replace(b, t0_ns=math.nan), low, V)
-    assert any("ground-coupled" in n for n in result.notes)
-    assert any(abs(d.x_m - 1.0) < 0.01 and abs(d.fit.top_m - 0.08) < 0.01 for d in result.detections), result.detections

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gprbot.config import GprConfig
-from gprbot.gpr.traveltime import C_M_PER_NS, two_way_time, velocity_from_eps
+from gprbot.gpr.traveltime import C_M_PER_NS, refracted_leg_time, two_way_time, velocity_from_eps
 from gprbot.gpr.wavelet import ricker
 from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.reflectors import FILL_OPTICS
@@ -46,6 +46,17 @@ def _response(scene: Scene, mid: np.ndarray, gpr: GprConfig) -> np.ndarray:
 
 def _sample_of(t_ns: float, gpr: GprConfig) -> float:
     return (t_ns + gpr.pre_trigger_ns) / gpr.dt_ns
+
+
+def test_an_antenna_on_the_surface_sends_straight_rays_and_one_above_it_refracted_ones() -> None:
+    # On the surface Fermat's fastest path would run along it in the air (a weak lateral wave); the FDTD
+    # scenes with a source at the surface follow the straight ray through the ground.
+    horiz, depth = np.array([0.0, 0.1, 0.3]), np.array([0.1, 0.1, 0.1])
+    on = refracted_leg_time(np.zeros(3), horiz, depth, V)
+    assert np.allclose(on, np.hypot(horiz, depth) / V)
+    up = refracted_leg_time(np.full(3, 0.02), horiz, depth, V)
+    assert up[0] == pytest.approx(0.02 / C_M_PER_NS + 0.1 / V)
+    assert np.all(up[1:] < 0.02 / C_M_PER_NS + np.hypot(horiz[1:], depth[1:]) / V)  # bent: faster than straight
 
 
 def test_ricker_peak_zero_crossings_and_spectrum() -> None:

@@ -27,12 +27,6 @@ FloatArray = NDArray[np.float64]
 _DIRECT_SEARCH_FRACTION = 0.6  # the direct wave lies in the first part of any sensible window
 _MIN_FREQUENCY_RATIO, _MAX_FREQUENCY_RATIO = 0.25, 3.0  # band searched around the nominal frequency
 SAMPLES_PER_PERIOD = 16  # finer time sampling adds cost and no information: decimate down to it
-# An antenna closer to the ground than this share of the air wavelength is timed as ground-coupled
-# (straight rays from its footprint, the air gap a fixed delay). FDTD dev half, velocity known, picks
-# against the truth: at 0.012 and 0.038 (0.7 and 1 cm at 0.5 and 1.2 GHz) straight rays fit 3-10x better
-# (40-140 ps rms against 450-470 ps); from 0.049 up (1-5 cm, 0.9-3 GHz) refracted rays fit better. Two
-# scenes below the line: the FDTD test half is the rule's hold-out.
-GROUND_COUPLED_WAVELENGTHS = 0.04
 
 
 @dataclass(frozen=True)
@@ -51,7 +45,6 @@ class PreparedBScan:
     antenna_height_m: float
     tx_rx_offset_m: float
     decimation: int = 1  # time samples merged into one (anti-aliased) to bound the cost
-    ground_coupled: bool = False  # the configured height was below GROUND_COUPLED_WAVELENGTHS: timed as 0
 
     @property
     def period_ns(self) -> float:
@@ -149,10 +142,5 @@ def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
     freq = dominant_frequency(cleaned, raw.dt_ns, start, gpr.centre_frequency_mhz)
     noise = noise_level(cleaned[:, start:]) or float(np.std(cleaned)) or 1e-12
     env = np.abs(signal.hilbert(cleaned, axis=1))
-    height, coupled = gpr.antenna_height_m, False
-    if 0.0 < height < GROUND_COUPLED_WAVELENGTHS * C_M_PER_NS * 1000.0 / freq:
-        # Far closer to the ground than a wavelength, the antenna's field enters the ground from its
-        # footprint at every angle (no refraction cone): straight rays, the air gap a fixed delay.
-        t0, height, coupled = t0 + 2.0 * height / C_M_PER_NS, 0.0, True
     return PreparedBScan(cleaned, env, x, raw.dt_ns, float(t0), method, freq, noise, polarity,
-                         height, gpr.tx_rx_offset_m, q, ground_coupled=coupled)
+                         gpr.antenna_height_m, gpr.tx_rx_offset_m, q)

@@ -19,12 +19,11 @@ from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
-from gprbot.gpr.chain.prepare import GROUND_COUPLED_WAVELENGTHS, PreparedBScan, prepare
+from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.spots import find_spots, spot_detections, without_echoes_of
 from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
 from gprbot.gpr.migration import depth_axis, envelope, kirchhoff_migrate
-from gprbot.gpr.traveltime import C_M_PER_NS
 
 FloatArray = NDArray[np.float64]
 NOMINAL_VELOCITY = 0.1  # m/ns, concrete: used for depths only when nothing better is known, and said so
@@ -115,10 +114,6 @@ def interpret(
                      f"({round(1000.0 / (prep.frequency_mhz * prep.dt_ns))} samples a period) to bound the cost")
     if prep.t0_method != "given":
         notes.append(f"time zero {prep.t0_ns:.2f} ns from the {prep.t0_method}")
-    if prep.ground_coupled:
-        notes.append(f"antenna {100.0 * gpr.antenna_height_m:.1f} cm up, under "
-                     f"{GROUND_COUPLED_WAVELENGTHS:g} of the {C_M_PER_NS * 1e5 / prep.frequency_mhz:.0f} cm air "
-                     "wavelength: timed as ground-coupled (straight rays from its footprint, the gap a fixed delay)")
     candidates = apex_candidates(prep)
     reflectors = fit_reflectors(prep, candidates)
     source: Literal["given", "estimated", "fallback"]
