@@ -76,7 +76,8 @@ async def abuser(kind: str, port: int, stop: asyncio.Event, counts: dict[str, in
         counts[kind] = counts.get(kind, 0) + 1
         try:
             if kind == "idle":
-                await asyncio.wait_for(reader.read(), 60)
+                async with asyncio.timeout(60):
+                    await reader.read()
             elif kind == "slowloris":
                 for _ in range(60):
                     writer.write(b"s")
@@ -114,7 +115,8 @@ async def abuser(kind: str, port: int, stop: asyncio.Event, counts: dict[str, in
         finally:
             writer.close()
             with contextlib.suppress(OSError, TimeoutError):
-                await asyncio.wait_for(writer.wait_closed(), 2.0)
+                async with asyncio.timeout(2.0):
+                    await writer.wait_closed()
         await asyncio.sleep(0.2)
 
 
@@ -192,7 +194,8 @@ async def soak(minutes: float, estop_every_s: float, json_out: Path | None) -> N
                 memory.append((time.monotonic() - began, rss_mib(proc.pid)))
                 await asyncio.sleep(10.0)
             stop.set()
-            await asyncio.wait_for(op, 60)
+            async with asyncio.timeout(60):
+                await op
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)

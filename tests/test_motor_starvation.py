@@ -25,6 +25,7 @@ from gprbot.drivers.motors.emulator import RoboClawEmulator
 from gprbot.drivers.motors.pty_link import PtyLink
 from gprbot.errors import DriverError
 from gprbot.messages import WheelSpeeds
+from tests.aio import within
 
 CFG = MotorsConfig(port="set-per-test", command_timeout_s=0.02, retries=2)
 BLOCK_S = 0.05  # longer than the 20 ms reply timeout, shorter than the controllers' 100 ms failsafe
@@ -113,7 +114,7 @@ async def test_a_cancelled_waiter_already_dropped_by_release_is_not_an_error() -
     lock.release()  # ...when release() skips the cancelled future and drops it from the queue
     with pytest.raises(asyncio.CancelledError):
         await waiter  # used to raise ValueError from deque.remove
-    await asyncio.wait_for(lock.acquire(), 0.1)  # and the lock is free, not leaked
+    await within(lock.acquire(), 0.1)  # and the lock is free, not leaked
 
 
 async def test_a_threaded_link_answers_while_the_loop_is_blocked() -> None:

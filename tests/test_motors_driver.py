@@ -20,6 +20,7 @@ from gprbot.drivers.motors.emulator import RoboClawEmulator
 from gprbot.drivers.motors.safety import check_motors_config
 from gprbot.errors import ConfigError, DriverError
 from gprbot.messages import WheelEncoders, WheelSpeeds, decode, encode
+from tests.aio import within
 
 CPR = 1024
 CFG = MotorsConfig(
@@ -318,7 +319,7 @@ async def test_fault_is_reported_stopped_within_100_ms_and_recovers(
             assert stopped[1] == stopper
             assert all(emu.commanded_speed(a, c) == 0.0 for a, c in ALL_MOTORS)  # the model obeyed the log
             recover(emu)
-            await asyncio.wait_for(drv.wait_connected(), 3.0)
+            await within(drv.wait_connected(), 3.0)
             seen = len(loop.readings)
             await until(lambda: len(loop.readings) > seen + 3 and emu.commanded_speed(128, 1) > 9)
         assert drv.health().connected and drv.reconnects == 1
@@ -353,7 +354,7 @@ async def test_reconnect_backoff_doubles_up_to_the_cap(emulator: tuple[RoboClawE
         await until(lambda: len(delays) >= 7)
         assert delays[:7] == [0.1, 0.2, 0.4, 0.8, 1.6, 2.0, 2.0]
         emu.replug()
-        await asyncio.wait_for(drv.wait_connected(), 3.0)
+        await within(drv.wait_connected(), 3.0)
     finally:
         await drv.close()
 
@@ -378,7 +379,7 @@ async def test_controllers_on_separate_usb_ports(tmp_path: Path) -> None:
             assert stopped_b is not None and stopped_b[1] == "failsafe"  # the unplugged one stops itself
             assert max(stopped_a[0], stopped_b[0]) - t_fault <= 0.1
             emu_b.replug()
-            await asyncio.wait_for(drv.wait_connected(), 3.0)
+            await within(drv.wait_connected(), 3.0)
     finally:
         await drv.close()
         emu_a.close()
