@@ -71,7 +71,7 @@ def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
     edge = min(r.candidate.column, prep.data.shape[0] - 1 - r.candidate.column) <= 2
     # Each flank must run a fair part of a wavelength (in the ground) along the line: on a coarse
     # low-frequency line three picks are a few centimetres of clutter, not a flank.
-    wavelength = (v if v else 0.1) / (prep.frequency_mhz / 1000.0)
+    wavelength = prep.wavelength_m(v if v else 0.1)
     least = max(MIN_FLANK_PICKS, math.ceil(MIN_FLANK_WAVELENGTHS * wavelength / prep.dx_m))
     two_sided = min(p.left, p.right) >= max(least, FLANK_BALANCE * max(p.left, p.right))
     flanks = two_sided or (edge and max(p.left, p.right) >= 2 * least)

@@ -51,6 +51,10 @@ class PreparedBScan:
         """One period of the dominant frequency (ns)."""
         return 1000.0 / self.frequency_mhz
 
+    def wavelength_m(self, v: float) -> float:
+        """One dominant wavelength (m) at velocity v (m/ns)."""
+        return v * self.period_ns
+
     @property
     def dx_m(self) -> float:
         """Grid spacing along the line (m)."""

@@ -61,7 +61,7 @@ class Interpretation:
 def migrated(prep: PreparedBScan, v: float, depth_max_m: float) -> tuple[NDArray[np.float32], FloatArray]:
     """The Kirchhoff-migrated image (nz, nx) to depth_max_m, decimated in depth beyond MAX_IMAGE_CELLS."""
     # A sixteenth of the dominant wavelength resolves the focus; finer costs without showing more.
-    dz = max(0.0025, v / (prep.frequency_mhz / 1000.0) / 16.0, depth_max_m * len(prep.x_m) / MAX_IMAGE_CELLS)
+    dz = max(0.0025, prep.wavelength_m(v) / 16.0, depth_max_m * len(prep.x_m) / MAX_IMAGE_CELLS)
     z = depth_axis(depth_max_m, dz)
     image = kirchhoff_migrate(prep.data, prep.x_m, prep.dt_ns, prep.t0_ns, z, v,
                               antenna_height_m=prep.antenna_height_m, tx_rx_offset_m=prep.tx_rx_offset_m)
@@ -138,10 +138,9 @@ def interpret(
     detections = classify(prep, reflectors, v)
     depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
     image, z = migrated(prep, v, max(depth, 0.05))
-    detections = focused(detections, image, prep.x_m, z, v / (prep.frequency_mhz / 1000.0))
+    detections = focused(detections, image, prep.x_m, z, prep.wavelength_m(v))
     spots = find_spots(prep, envelope(image), z, v)
-    wavelength = v / (prep.frequency_mhz / 1000.0)
     extra = spot_detections(prep, spots, detections, v)
-    detections = relabel_rows(without_echoes_of(detections, extra, wavelength) + extra)
+    detections = relabel_rows(without_echoes_of(detections, extra, prep.wavelength_m(v)) + extra)
     section = _section(prep, detections, v, image, z, source == "estimated")
     return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))

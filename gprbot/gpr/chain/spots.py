@@ -60,7 +60,7 @@ def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v
     if len(z_m) < 3 or env.shape[1] < 3:
         return ()
     e = np.asarray(env, dtype=np.float64)
-    dz, wavelength = float(z_m[1] - z_m[0]), v / (prep.frequency_mhz / 1000.0)
+    dz, wavelength = float(z_m[1] - z_m[0]), prep.wavelength_m(v)
     wz, wx = max(1, round(0.25 * wavelength / dz)), max(1, round(0.25 * wavelength / prep.dx_m))
     peaks = e == ndimage.maximum_filter(e, size=(2 * wz + 1, 2 * wx + 1), mode="nearest")
     # What migrates within the direct wave's tail is the antenna's own ringing.
@@ -186,7 +186,7 @@ def _spot_detection(prep: PreparedBScan, spot: Spot, seeded: Reflector | None, v
 def spot_detections(prep: PreparedBScan, spots: Sequence[Spot], detections: Sequence[ClassifiedDetection],
                     v: float) -> tuple[ClassifiedDetection, ...]:
     """Detections at the spots no detection explains and that are no echo of a stronger target."""
-    wavelength = v / (prep.frequency_mhz / 1000.0)
+    wavelength = prep.wavelength_m(v)
     known = [(d.x_m, d.fit.top_m, _fitted_radius(d)) for d in detections]
 
     def open_spot(spot: Spot) -> bool:
