@@ -30,7 +30,6 @@ MIN_PICKS = 5
 PICK_STD_PERIODS = 0.03  # floor of a pick's timing error, in periods
 ROBUST_SCALE = 2.0  # soft-L1 scale, in pick standard deviations
 ITERATIONS = 20
-STEP_TOLERANCE = 1e-5  # m (x0, top, radius) and m/ns (velocity): 10 µm, 0.01 % of concrete's velocity
 START_RADII_M = np.array([0.01])
 
 
@@ -136,10 +135,8 @@ def fit_cylinders(
         J[active] = np.where(better[:, None, None], J_trial, Ja)
         c[active] = np.where(better, c_trial, c[active])
         lam[active] = np.where(better, la * 0.3, la * 10.0)
-        # Done: improving by less than a part in 10⁴, a rejected step that was already tiny (at the minimum
-        # a rejection only grows the damping, ~8 more tries before giving up), or given up.
-        tiny = np.abs(step).max(axis=1) < STEP_TOLERANCE
-        active = active[~((better & (gain < 1e-4)) | (~better & tiny) | (lam[active] > 1e6))]
+        # Done: improving by less than a part in 10⁴, or given up.
+        active = active[~((better & (gain < 1e-4)) | (lam[active] > 1e6))]
         if not len(active):
             break
     best = c.reshape(n_starts, n_sel).argmin(axis=0) * n_sel + np.arange(n_sel)
