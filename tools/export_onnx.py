@@ -37,8 +37,8 @@ class ModelEntry:
     """How to build and describe one exportable model."""
 
     builder: str  # "module:function", called with the checkpoint's model_config
-    inputs: tuple[tuple[str, tuple[int, ...], str], ...]  # (name, shape without batch, units)
-    outputs: tuple[tuple[str, tuple[int, ...], str], ...]
+    inputs: tuple[tuple[str, tuple[int | str, ...], str], ...]  # (name, shape without batch, units); str: dynamic
+    outputs: tuple[tuple[str, tuple[int | str, ...], str], ...]
     normalisation: str
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -96,8 +96,26 @@ def _cloud_entry(builder: str) -> ModelEntry:
     )
 
 
+def _refiner_entry() -> ModelEntry:
+    from gprbot.infer import refine as rt
+
+    pipes = f"one-hot pipe of each point ({rt.MAX_PIPES} columns; a row of zeros: no gated pipe)"
+    return ModelEntry(
+        "training.refine_model:build_fit_refiner",
+        ((rt.SPARSE_NAME, (rt.SPARSE_POINTS, 3), "sparse cloud normalised to the unit cube (see normalisation)"),
+         (rt.FIT_NAME, (rt.FIT_POINTS, 3), "points inside the geometric fit's rods, same frame"),
+         (rt.FIT_PIPES_NAME, (rt.FIT_POINTS, rt.MAX_PIPES), pipes),
+         (rt.QUERY_NAME, ("points", 3), "rod points to correct, same frame"),
+         (rt.QUERY_PIPES_NAME, ("points", rt.MAX_PIPES), pipes)),
+        ((rt.LOGITS_NAME, (rt.MAX_PIPES,), "logit that each fitted pipe is real (sigmoid → probability)"),
+         (rt.REFINED_NAME, ("points", 3), "the query points moved by the learned correction, same frame")),
+        "points centred on the sparse cloud's bounding-box centre and divided by its longest side",
+    )
+
+
 REGISTRY = {
     "migrationnet": _migrationnet_entry,
+    "fit_refiner": _refiner_entry,
     "gprnet": lambda: _cloud_entry("build_gprnet"),
     "pcn": lambda: _cloud_entry("build_pcn"),
     "pfnet": lambda: _cloud_entry("build_pfnet"),
@@ -105,19 +123,22 @@ REGISTRY = {
 
 
 def completion_recipe(model_name: str, checkpoint: Path, state: dict[str, Any], out: Path) -> dict[str, Any]:
-    """The card's "reproduce" commands of a completion model, from its checkpoint (run name, seed, minutes)."""
+    """The card's "reproduce" commands of a completion model, from the recipe its checkpoint recorded."""
+    recipe = state.get("recipe", {})
     run = checkpoint.parent.name
-    history = state.get("history", [])
-    minutes = round(history[-1]["elapsed_s"] / 60.0) if history else 35
-    name = f" --name {run}" if run != model_name else ""
+    options = f" --name {run}" if run != model_name else ""
+    if recipe.get("variant") not in (None, model_name, run):
+        options += f" --variant {recipe['variant']}"
+    if recipe.get("train_limit") is not None:
+        options += f" --train-limit {recipe['train_limit']}"
     return {"reproduce": [
-        f"scripts/train_completion_models.sh {minutes}  # the four runs at once, equal time; or this run alone:",
         "python -m training.pointcloud_data train val test",
-        f"python -m training.train_completion --model {model_name}{name} --minutes {minutes} "
-        f"--threads 1 --seed {state.get('seed', 0)}",
+        f"python -m training.train_completion --model {model_name}{options} --epochs {recipe.get('epochs')} "
+        f"--seed {state.get('seed', 0)} --threads 1",
         f"python tools/export_onnx.py {model_name} --checkpoint {checkpoint} --out {out}",
         "python -m training.evaluate --out models/",
-    ], "evaluation": "models/EVAL.md"}
+    ], "budget": f"{recipe.get('epochs')} epochs (the schedule spans them); wall clock only reported",
+        "evaluation": "models/EVAL.md"}
 
 
 def _with_overrides(entry: ModelEntry, overrides: dict[str, Any]) -> ModelEntry:
@@ -143,16 +164,19 @@ def export(model_name: str, checkpoint: Path, out: Path, batch: int = 2) -> dict
 
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
     entry = _with_overrides(REGISTRY[model_name](), state.get("export", {}))
-    if "reproduce" not in entry.extra and model_name != "migrationnet":
+    if "reproduce" not in entry.extra and model_name not in ("migrationnet", "fit_refiner"):
         entry = replace(entry, extra=entry.extra | completion_recipe(model_name, checkpoint, state, out))
     module_name, function = entry.builder.split(":")
     model = getattr(importlib.import_module(module_name), function)(**state.get("model_config", {}))
     model.load_state_dict(state["model"])
     model.eval()
     generator = torch.Generator().manual_seed(0)
-    example = tuple(torch.randn(batch, *shape, generator=generator) for _, shape, _ in entry.inputs)
+    example = tuple(torch.randn(batch, *(d if isinstance(d, int) else 64 for d in shape), generator=generator)
+                    for _, shape, _ in entry.inputs)
     names_in = [n for n, _, _ in entry.inputs]
     names_out = [n for n, _, _ in entry.outputs]
+    dynamic = {n: {0: "batch"} | {i + 1: d for i, d in enumerate(shape) if isinstance(d, str)}
+               for n, shape, _ in entry.inputs + entry.outputs}
     out.parent.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings():
         # the legacy exporter announces its deprecation; the torch.export-based one needs onnxscript,
@@ -160,7 +184,7 @@ def export(model_name: str, checkpoint: Path, out: Path, batch: int = 2) -> dict
         warnings.simplefilter("ignore", DeprecationWarning)
         torch.onnx.export(
             model, example, str(out), input_names=names_in, output_names=names_out,
-            dynamic_axes={n: {0: "batch"} for n in names_in + names_out}, opset_version=OPSET,
+            dynamic_axes=dynamic, opset_version=OPSET,
             dynamo=False, external_data=False,
         )
     with torch.no_grad():
@@ -173,7 +197,7 @@ def export(model_name: str, checkpoint: Path, out: Path, batch: int = 2) -> dict
     if diff > 1e-3:
         raise SystemExit(f"parity check failed ({diff:.3g} > 1e-3); the exported graph is not the model")
 
-    def tensors(items: tuple[tuple[str, tuple[int, ...], str], ...]) -> list[dict[str, Any]]:
+    def tensors(items: tuple[tuple[str, tuple[int | str, ...], str], ...]) -> list[dict[str, Any]]:
         return [{"name": n, "shape": ["batch", *s], "dtype": "float32", "units": u} for n, s, u in items]
 
     card = {

@@ -87,6 +87,7 @@ class GPRNet(nn.Module):
         super().__init__()
         dims = (3, *widths)
         self.input_seeds = input_seeds
+        self.reshape_points = reshape_points
         self.levels = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(dims))
         # fuse_hidden 0: the paper's single fused PointNet layer [features; pooled] → global_dim; > 0: through
         # a narrower hidden layer first (the CPU-sized variant; EVAL.md says what it costs)
@@ -133,7 +134,7 @@ class GPRNet(nn.Module):
         if self.input_seeds:
             anchors = x[:, :: max(x.shape[1] // self.input_seeds, 1)][:, : self.input_seeds]
             parts.append(anchors + self.anchor_out(torch.relu(self.anchor_first(anchors, g))))
-        else:
+        elif self.reshape_points:
             parts.append(self.reshape(g).reshape(x.shape[0], -1, 3))
         seeds = torch.cat(parts, 1)
         return [seeds, self.fold(seeds, g)]

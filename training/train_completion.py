@@ -1,13 +1,16 @@
-"""Train GPRNet, PCN or PF-Net on the cached completion dataset, on a wall-clock budget, with resume.
+"""Train GPRNet, PCN or PF-Net on the cached completion dataset, on a budget of epochs, with resume.
 
-    python -m training.train_completion --model gprnet --minutes 35
+    python -m training.train_completion --model gprnet --epochs 4 --seed 0 --name gprnet_s0
 
-Every epoch writes training/checkpoints/<model>/last.pt (model, optimizer, history, elapsed time) and,
+Every epoch writes training/checkpoints/<name>/last.pt (model, optimizer, history, elapsed time) and,
 when the validation CD2 improves, best.pt — the checkpoint tools/export_onnx.py reads. Re-running the
-same command resumes from last.pt. The learning rate follows a cosine over the *time* budget, so a
-resumed or slower run still anneals. The loss is CD2 summed over the model's stages (coarse → dense);
-each step compares a random 2048-point subset of the truth (and of the dense output) — an unbiased
-estimate of the pred→truth term at a quarter of the cost of the full 8064 × 8192 matrix.
+same command resumes from last.pt (a checkpoint written with another budget, seed or size is refused).
+The budget is epochs and the learning rate follows a cosine over their steps, so two runs of one
+command give the same model on any machine; the wall clock is only reported. Each epoch's shuffle and
+augmentation draws come from (seed, epoch), so a resumed run continues exactly. The loss is CD2 summed
+over the model's stages (coarse → dense); each step compares a random 2048-point subset of the truth
+(and of the dense output) — an unbiased estimate of the pred→truth term at a quarter of the cost of the
+full 8064 × 8192 matrix.
 """
 
 from __future__ import annotations
@@ -36,6 +39,9 @@ MODEL_CONFIGS: dict[str, dict[str, Any]] = {
     "gprnet_fullfuse": {"fuse_hidden": 0},  # the paper's fused layer at full width (no 64-wide bottleneck)
     # and its branches as a 1024/512/256 FC chain, 256/128/64 points read off successive layers
     "gprnet_pyramid": {"fuse_hidden": 0, "branch_widths": (1024, 512, 256)},
+    # ablation: GPRNet's encoder with PCN's decoder (all 896 seeds from one FC layer off a 512 hidden one, no
+    # branches, no reshaped global) — which half of GPRNet makes the difference against PCN
+    "gprnet_fc_seeds": {"fuse_hidden": 0, "branch_points": (896,), "reshape_points": 0},
 }
 MIN_LR_FRACTION = 0.05
 # A sample whose truth reaches this far outside the unit cube had a sparse cloud far smaller than its pipes
@@ -92,9 +98,9 @@ def validate(model: torch.nn.Module, sparse: NDArray[np.float32], dense: NDArray
     }
 
 
-def learning_rate(base: float, elapsed_s: float, budget_s: float) -> float:
-    """Cosine decay from base to MIN_LR_FRACTION·base over the time budget."""
-    f = min(elapsed_s / budget_s, 1.0)
+def learning_rate(base: float, step: int, total_steps: int) -> float:
+    """Cosine decay from base to MIN_LR_FRACTION·base over the run's steps."""
+    f = min(step / max(total_steps, 1), 1.0)
     return base * (MIN_LR_FRACTION + (1.0 - MIN_LR_FRACTION) * 0.5 * (1.0 + math.cos(math.pi * f)))
 
 
@@ -102,7 +108,6 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     """Run (or resume) one training; returns the final history."""
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
-    gen = torch.Generator().manual_seed(args.seed)
     run_name = args.name or args.model
     out_dir = CHECKPOINTS / run_name
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -121,7 +126,10 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     sparse = torch.from_numpy(train_data["sparse"][usable][: args.train_limit])
     dense = torch.from_numpy(train_data["dense"][usable][: args.train_limit])
     val_sparse, val_dense = val_data["sparse"][: args.val_limit], val_data["dense"][: args.val_limit]
-    config = dict(MODEL_CONFIGS[run_name])
+    variant = args.variant or (run_name if run_name in MODEL_CONFIGS else args.model)
+    config = dict(MODEL_CONFIGS[variant])
+    recipe = {"model": args.model, "variant": variant, "epochs": args.epochs, "batch_size": args.batch_size,
+              "lr": args.lr, "seed": args.seed, "train_limit": args.train_limit, "loss_points": args.loss_points}
     model = BUILDERS[args.model](**config)
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     history: list[dict[str, float]] = []
@@ -129,36 +137,39 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     last = out_dir / "last.pt"
     if last.exists() and not args.fresh:
         state = torch.load(last, weights_only=False)
+        if state.get("recipe") != recipe:
+            raise SystemExit(f"{last} was written by {state.get('recipe')}, not {recipe}; pass --fresh or another "
+                             "--name (resuming would splice two schedules into a run no command reproduces)")
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
         best = min((h["val_cd2"] for h in history), default=math.inf)
-        gen.manual_seed(args.seed + epoch)
         say(f"resumed {args.model} at epoch {epoch}, {elapsed / 60:.1f} min done")
     else:
         say(f"{args.model}: {parameter_count(model)} parameters, {len(sparse)} train / {len(val_sparse)} val samples "
             f"(left out, truth beyond {MAX_TRUTH_EXTENT} of the cube: seeds {dropped})")
-    budget = args.minutes * 60.0
-    while epoch < args.epochs and elapsed < budget:
+    steps_per_epoch = len(sparse) // args.batch_size
+    while epoch < args.epochs:
+        gen = torch.Generator().manual_seed(args.seed * 1000 + epoch)  # an epoch's draws depend on it alone
         start, losses = time.perf_counter(), []
         order = torch.randperm(len(sparse), generator=gen)
-        for i in range(0, len(order) - args.batch_size + 1, args.batch_size):
+        for step in range(steps_per_epoch):
+            i = step * args.batch_size
             for group in optimizer.param_groups:
-                group["lr"] = learning_rate(args.lr, elapsed + time.perf_counter() - start, budget)
+                group["lr"] = learning_rate(args.lr, epoch * steps_per_epoch + step, args.epochs * steps_per_epoch)
             x, y = augment(sparse[order[i : i + args.batch_size]], dense[order[i : i + args.batch_size]], gen)
             loss = stage_loss(model.forward_stages(x), y, args.loss_points, gen)  # type: ignore[operator]
             optimizer.zero_grad()
             loss.backward()  # type: ignore[no-untyped-call]
             optimizer.step()
             losses.append(float(loss.detach()))
-            if elapsed + time.perf_counter() - start > budget:
-                break
         elapsed += time.perf_counter() - start
         epoch += 1
         val = validate(model, val_sparse, val_dense)
         history.append({"epoch": epoch, "elapsed_s": elapsed, "train_loss": float(np.mean(losses)),
                         "val_cd2": val["cd2"], "val_cd1": val["cd1"], "val_fscore": val["fscore"]})
         state = {"model": model.state_dict(), "model_config": config, "epoch": epoch, "seed": args.seed,
+                 "recipe": recipe,
                  "metrics": {f"val_{k}": v for k, v in val.items()}, "optimizer": optimizer.state_dict(),
                  "elapsed_s": elapsed, "history": history, "export": export_overrides(),
                  "data": {"train": len(sparse), "val": len(val_sparse), "generator": "training.pointcloud_data",
@@ -180,9 +191,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """Command-line options."""
     parser = argparse.ArgumentParser(description="train a point-cloud completion model")
     parser.add_argument("--model", choices=sorted(BUILDERS), required=True)
-    parser.add_argument("--name", default=None, help="a MODEL_CONFIGS variant (e.g. gprnet_anchored)")
-    parser.add_argument("--minutes", type=float, default=35.0, help="wall-clock training budget")
-    parser.add_argument("--epochs", type=int, default=1000)
+    parser.add_argument("--name", default=None, help="the run's name (checkpoints, log); a MODEL_CONFIGS key picks "
+                        "that variant's sizes")
+    parser.add_argument("--variant", default=None, help="a MODEL_CONFIGS variant for a run named otherwise")
+    parser.add_argument("--epochs", type=int, required=True, help="the budget: the LR schedule spans its steps")
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--loss-points", type=int, default=2048)

@@ -15,7 +15,7 @@ import numpy as np
 
 from gprbot.config import Config, model_path
 from gprbot.errors import InterpretationError
-from gprbot.gpr.bscan import BScan, Detection
+from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.run import interpret
 from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
@@ -54,17 +54,22 @@ def interpret_line(
     line: int, processed: BScan, cfg: Config, velocity: float, hints: Sequence[CrossingHint] = ()
 ) -> LineResult:
     """Interpret one preprocessed line (MigrationNet or classical, as configured) and register it in 3D."""
-    if cfg.interpretation.method == "migrationnet":
-        interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads,
-                                              cfg.models_dir)
-        section = interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
-    else:
-        section = interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
-    section = replace(section, rebars=line_rebars(processed, cfg, velocity))
+    section = replace(line_section(processed, cfg, velocity, hints), rebars=line_rebars(processed, cfg, velocity))
     cols = processed.position_at(section.x_m)
     std = processed.position_std_m
     pose_std = float(np.sqrt(np.mean(np.square(std)))) if std is not None and std.size else 0.0
     return LineResult(line, processed, section, register_slice(line, section.mask, section.z_m, cols, pose_std))
+
+
+def line_section(
+    processed: BScan, cfg: Config, velocity: float, hints: Sequence[CrossingHint] = ()
+) -> CrossSection:
+    """One preprocessed line's cross-section (pipes only), by the configured interpreter."""
+    if cfg.interpretation.method == "migrationnet":
+        interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads,
+                                              cfg.models_dir)
+        return interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
+    return interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
 
 
 def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detection, ...]:

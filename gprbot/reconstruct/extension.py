@@ -1,0 +1,166 @@
+"""Where a fitted pipe might continue: its axis pushed on to the survey's edge, and each point's distance past its end.
+
+The geometric fit claims a pipe only from the first to the last line that saw it (plus half a line
+spacing). Past that the slices say nothing, but pipes rarely end where a line stopped seeing them: an
+interpreter misses a weak or shallow-angle crossing, a line is missing. The learned completion
+(gprbot.infer.refine) is asked, point by point, whether the pipe goes on; these are the candidates.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gprbot.geometry import drop_repeated_vertices, sample_rods
+from gprbot.reconstruct.completion import PipeModel
+
+MAX_EXTENSION_M = 1.5  # no pipe end is pushed further than this, whatever the survey's size
+Footprint = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax of the surveyed area (m)
+
+
+@dataclass(frozen=True)
+class ExtendedAxis:
+    """An axis pushed on at its free ends: the polyline and how much was added at the start and the end (m)."""
+
+    axis: NDArray[np.float64]
+    added: tuple[float, float]
+
+
+def survey_footprint(positions_per_line: Mapping[int, NDArray[np.float64]]) -> Footprint:
+    """The area the lines covered: their antenna positions' box, widened by half the median line spacing."""
+    lines = [np.asarray(p, dtype=np.float64)[:, :2] for p in positions_per_line.values() if len(p)]
+    if not lines:
+        raise ValueError("a survey footprint needs at least one line with positions")
+    allxy = np.concatenate(lines)
+    centres = np.array([line.mean(axis=0) for line in lines])
+    # lines run side by side: their spacing is the gap between neighbouring centres across the lines
+    spread = allxy.max(axis=0) - allxy.min(axis=0)
+    across = int(np.argmin(spread)) if len(lines) > 1 else 1
+    gaps = np.diff(np.sort(centres[:, across]))
+    half = 0.5 * float(np.median(gaps)) if len(gaps) else 0.0
+    lo, hi = allxy.min(axis=0), allxy.max(axis=0)
+    lo[across] -= half
+    hi[across] += half
+    return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
+
+
+def distance_to_edge(point: NDArray[np.float64], direction: NDArray[np.float64], footprint: Footprint) -> float:
+    """How far a ray from point (horizontal part of direction) runs before it leaves the footprint (0 if outside)."""
+    xmin, xmax, ymin, ymax = footprint
+    x, y = float(point[0]), float(point[1])
+    if not (xmin <= x <= xmax and ymin <= y <= ymax):
+        return 0.0
+    run = np.inf
+    for k, (lo, hi) in enumerate(((xmin, xmax), (ymin, ymax))):
+        d = float(direction[k])
+        if abs(d) > 1e-9:
+            run = min(run, ((hi if d > 0 else lo) - float(point[k])) / d)
+    return float(run) if np.isfinite(run) else 0.0
+
+
+def extend_to_footprint(axis: NDArray[np.float64], ends_on: tuple[int | None, int | None],
+                        footprint: Footprint) -> ExtendedAxis:
+    """The axis pushed straight on at each end that joins no other pipe, to the footprint's edge (≤ MAX_EXTENSION_M)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    if len(axis) < 2:
+        return ExtendedAxis(axis, (0.0, 0.0))
+    added = []
+    ends = []
+    for end, inner, joined in ((axis[0], axis[1], ends_on[0]), (axis[-1], axis[-2], ends_on[1])):
+        outward = end - inner
+        norm = float(np.linalg.norm(outward))
+        length = 0.0
+        if joined is None and norm > 1e-9:
+            outward = outward / norm
+            horizontal = float(np.linalg.norm(outward[:2]))
+            if horizontal > 1e-6:
+                length = min(distance_to_edge(end, outward / horizontal, footprint) / horizontal, MAX_EXTENSION_M)
+        added.append(length)
+        ends.append(end + (outward * length if length > 0 else 0.0))
+    extended = drop_repeated_vertices(np.vstack([ends[0], axis[1:-1], ends[1]]) if len(axis) > 2
+                                      else np.vstack([ends[0], ends[1]]))
+    return ExtendedAxis(extended, (added[0], added[1]))
+
+
+def arclength_on(points: NDArray[np.float64], polyline: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Arc length (m from the polyline's start) of each point's nearest point on the polyline."""
+    points = np.atleast_2d(points)
+    best_d = np.full(len(points), np.inf)
+    best_s = np.zeros(len(points))
+    start = 0.0
+    for a, b in itertools.pairwise(polyline):
+        ab = b - a
+        length = float(np.linalg.norm(ab))
+        t = np.clip((points - a) @ ab / max(length**2, 1e-12), 0.0, 1.0)
+        d = np.linalg.norm(points - (a + np.outer(t, ab)), axis=1)
+        closer = d < best_d
+        best_d[closer], best_s[closer] = d[closer], start + t[closer] * length
+        start += length
+    return best_s
+
+
+def beyond_fit(
+    points: NDArray[np.float64], owner: NDArray[np.integer], extended: Sequence[ExtendedAxis]
+) -> NDArray[np.float64]:
+    """For each point of an extended rod, how far (m, along the axis) it lies past the fitted part (0 inside it)."""
+    out = np.zeros(len(points))
+    for k, ext in enumerate(extended):
+        mine = np.flatnonzero(owner == k)
+        if len(mine) == 0:
+            continue
+        s = arclength_on(points[mine], ext.axis)
+        total = float(np.sum(np.linalg.norm(np.diff(ext.axis, axis=0), axis=1)))
+        out[mine] = np.maximum.reduce([ext.added[0] - s, s - (total - ext.added[1]), np.zeros(len(s))])
+    return out
+
+
+def cut_polyline(polyline: NDArray[np.float64], s0: float, s1: float) -> NDArray[np.float64]:
+    """The part of a polyline between arc lengths s0 < s1 (clamped to it)."""
+    lengths = np.linalg.norm(np.diff(polyline, axis=0), axis=1)
+    cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
+    s0, s1 = max(0.0, s0), min(float(cumulative[-1]), s1)
+
+    def at(s: float) -> NDArray[np.float64]:
+        k = int(np.clip(np.searchsorted(cumulative, s, side="right") - 1, 0, len(lengths) - 1))
+        t = (s - cumulative[k]) / max(float(lengths[k]), 1e-12)
+        return np.asarray(polyline[k] + t * (polyline[k + 1] - polyline[k]))
+
+    inner = polyline[(cumulative > s0) & (cumulative < s1)]
+    return drop_repeated_vertices(np.vstack([at(s0), inner, at(s1)]))
+
+
+@dataclass(frozen=True)
+class RodCandidates:
+    """Points of the fitted rods (the network's view of the fit) and of the extended rods (the candidates)."""
+
+    extended: tuple[ExtendedAxis, ...]
+    fit: NDArray[np.float64]
+    fit_pipe: NDArray[np.int64]
+    query: NDArray[np.float64]
+    query_pipe: NDArray[np.int64]
+    beyond_m: NDArray[np.float64]
+
+
+def rod_candidates(pipes: Sequence[PipeModel], footprint: Footprint, n_fit: int, n_query: int,
+                   rng: np.random.Generator) -> RodCandidates | None:
+    """Sample the fitted rods and the rods extended to the footprint; None when nothing lies in the footprint."""
+    axes, radii = [p.axis for p in pipes], [p.radius_m for p in pipes]
+    extended = tuple(extend_to_footprint(p.axis, p.ends_on, footprint) for p in pipes)
+    fit, fit_pipe = sample_rods(axes, radii, n_fit, rng)
+    query, query_pipe = sample_rods([e.axis for e in extended], radii, n_query, rng, region_xy=footprint)
+    if len(fit) < n_fit or len(query) < n_query:
+        if len(query) == 0 or len(fit) == 0:
+            return None
+        query, query_pipe = _exactly(query, query_pipe, n_query, rng)
+        fit, fit_pipe = _exactly(fit, fit_pipe, n_fit, rng)
+    return RodCandidates(extended, fit, fit_pipe, query, query_pipe, beyond_fit(query, query_pipe, extended))
+
+
+def _exactly(points: NDArray[np.float64], owner: NDArray[np.int64], n: int,
+             rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    pick = rng.choice(len(points), size=n, replace=len(points) < n)
+    return points[pick], owner[pick]

@@ -1,0 +1,80 @@
+"""Where a fitted pipe may continue: footprint, extension to its edge, distance past the fitted part, cutting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gprbot.reconstruct.completion import PipeModel
+from gprbot.reconstruct.extension import (
+    MAX_EXTENSION_M,
+    arclength_on,
+    beyond_fit,
+    cut_polyline,
+    extend_to_footprint,
+    rod_candidates,
+    survey_footprint,
+)
+
+FOOTPRINT = (0.0, 2.0, -0.05, 0.95)  # lines along x at y = 0, 0.1, ..., 0.9
+
+
+def _lines() -> dict[int, np.ndarray]:
+    x = np.linspace(0.0, 2.0, 201)
+    return {i: np.stack([x, np.full_like(x, 0.1 * i), np.zeros_like(x)], axis=1) for i in range(10)}
+
+
+def test_the_footprint_is_the_lines_box_widened_by_half_a_spacing_across_them() -> None:
+    assert survey_footprint(_lines()) == pytest.approx(FOOTPRINT)
+
+
+def test_a_footprint_needs_a_line() -> None:
+    with pytest.raises(ValueError, match="at least one line"):
+        survey_footprint({})
+
+
+def test_a_free_end_runs_on_to_the_footprint_edge_and_a_joined_end_stays() -> None:
+    axis = np.array([[1.0, 0.3, -0.2], [1.0, 0.6, -0.2]])  # across the lines, seen on lines 3..6
+    free = extend_to_footprint(axis, (None, None), FOOTPRINT)
+    assert free.axis[0] == pytest.approx([1.0, -0.05, -0.2])
+    assert free.axis[-1] == pytest.approx([1.0, 0.95, -0.2])
+    assert free.added == pytest.approx((0.35, 0.35))
+    joined = extend_to_footprint(axis, (0, None), FOOTPRINT)
+    assert joined.axis[0] == pytest.approx(axis[0]) and joined.added[0] == 0.0
+
+
+def test_an_oblique_end_runs_along_its_own_direction_and_no_further_than_the_cap() -> None:
+    axis = np.array([[1.0, 0.4, -0.2], [1.1, 0.5, -0.2]])  # 45° to the lines
+    ext = extend_to_footprint(axis, (None, None), FOOTPRINT)
+    end = ext.axis[-1]
+    assert end[1] == pytest.approx(0.95) and end[0] - 1.1 == pytest.approx(0.45)
+    huge = (-10.0, 10.0, -10.0, 10.0)
+    assert max(extend_to_footprint(axis, (None, None), huge).added) == pytest.approx(MAX_EXTENSION_M)
+
+
+def test_points_past_the_fitted_part_measure_how_far_and_inside_it_zero() -> None:
+    axis = np.array([[1.0, 0.3, -0.2], [1.0, 0.6, -0.2]])
+    ext = extend_to_footprint(axis, (None, None), FOOTPRINT)
+    points = np.array([[1.0, 0.0, -0.2], [1.02, 0.45, -0.21], [1.0, 0.9, -0.2]])
+    assert beyond_fit(points, np.zeros(3, dtype=np.int64), [ext]) == pytest.approx([0.3, 0.0, 0.3])
+
+
+def test_arclength_and_cutting_follow_a_bent_polyline() -> None:
+    bend = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    assert arclength_on(np.array([[0.5, 0.1, 0.0], [1.1, 0.5, 0.0]]), bend) == pytest.approx([0.5, 1.5])
+    cut = cut_polyline(bend, 0.5, 1.5)
+    assert cut == pytest.approx(np.array([[0.5, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.5, 0.0]]))
+
+
+def test_candidates_cover_the_extended_rods_inside_the_footprint() -> None:
+    pipe = PipeModel(axis=np.array([[1.0, 0.3, -0.2], [1.0, 0.6, -0.2]]), radius_m=0.03, depth_of_cover_m=0.17,
+                     diameter_m=0.06, confidence=0.9, n_slices=4)
+    got = rod_candidates([pipe], FOOTPRINT, 256, 1024, np.random.default_rng(0))
+    assert got is not None
+    assert got.fit.shape == (256, 3) and got.query.shape == (1024, 3)
+    assert np.all(np.abs(got.fit[:, 1] - 0.45) <= 0.15 + 0.03 + 1e-9)
+    assert got.query[:, 1].min() < 0.05 and got.query[:, 1].max() > 0.85  # the rod runs on to the edges
+    past = got.beyond_m > 0
+    assert 0.5 < past.mean() < 0.8  # 0.7 of the 1.0 m rod lies past the fitted 0.3 m
+    outside = (-5.0, -4.0, -5.0, -4.0)
+    assert rod_candidates([pipe], outside, 256, 1024, np.random.default_rng(0)) is None
