@@ -83,7 +83,14 @@ def _migrationnet_entry() -> ModelEntry:
                    "Shrunk from 5 planned stage-1 epochs to 2 (the shared machine gave the job about a third of a "
                    "core); not converged: val IoU 0.347 → 0.389 over stage 1, 0.393 → 0.396 over the fine-tune, "
                    "and what a longer schedule would add was not measured",
-         "evaluation": "models/migrationnet_eval.md"},
+         "evaluation": "models/migrationnet_eval.md",
+         "logs": ("training/logs: migrationnet_dr.jsonl and train_migrationnet_dr.log are this model's stage 1 (the "
+                  "run ended after its 2nd epoch and printed its best, so it was started with --epochs 2 and its "
+                  "OneCycle schedule spans 2 epochs), migrationnet_dr_ft.jsonl and train_migrationnet_dr_ft.log its "
+                  "fine-tune (epoch 1 kept). migrationnet.jsonl and migrationnet_ft.jsonl are v1's two stages, "
+                  "trained on cache v1 (no domain randomisation): their val IoU (0.584) is on v1's validation "
+                  "tiles and not comparable with this model's 0.393 on the randomised ones; on the FDTD dev half v1 "
+                  "scored 12/25 within 3 cm to this model's 18/25")},
     )
 
 

@@ -2,6 +2,12 @@
 
     python -m training.evaluate --out models/
 
+These are component scores: every model's input is the test sample's sparse cloud, registered from
+degraded *truth* masks (training.pointcloud_data), not from interpreted B-scans — so they measure the
+completion alone. The whole chain from B-scans is training.eval_end_to_end. Cached rows are keyed on the
+code version (training.code_version: the data generator, the scoring and the models' sources) and the
+ONNX file's bytes, so a change to any of them re-scores.
+
 Table I: CD2×10³, CD1×10², F-score@1 % (unit-cube clouds, DESIGN §6) for GPRNet, PCN, PF-Net (the
 exported ONNX files, run with onnxruntime), the geometric fit (gprbot's geometric_completion on the
 same slices), the sparse input itself and the sampling floor (a second independent draw of the truth) —
@@ -34,6 +40,7 @@ from gprbot.progress import track
 from gprbot.reconstruct.completion import geometric_completion
 from gprbot.sim.truth import sample_pipe_interiors
 from training.chamfer import cloud_metrics
+from training.code_version import code_version
 from training.pointcloud_data import CACHE_DIR, DENSE_POINTS, load_split, survey_slices
 from training.pointcloud_models import BUILDERS, GPRNet
 from training.random_scenes import CASES, scene_for_seed, split_seeds
@@ -43,6 +50,7 @@ LEARNED = ("gprnet", "gprnet_fullfuse", "gprnet_pyramid", "gprnet_anchored", "pc
 NOISE_LEVELS = (0.0, 0.01, 0.05, 0.1, 0.2)
 LATENCY_RUNS = 20
 THREADS = 2
+_ME = "training.evaluate"  # this module's name, also when run as __main__
 Cloud = NDArray[np.float32]
 
 
@@ -156,9 +164,7 @@ def latencies(name: str, session: ort.InferenceSession, x: Cloud, checkpoint: Pa
 
 
 def migration_report(models_dir: Path) -> dict[str, Any] | None:
-    """MigrationNet's evaluation from training.eval_migration (when it and the model exist), cached by hash."""
-    import hashlib
-
+    """MigrationNet's evaluation from training.eval_migration (when it and the model exist), cached by version."""
     model = models_dir / "migrationnet.onnx"
     try:
         module = importlib.import_module("training.eval_migration")
@@ -166,7 +172,7 @@ def migration_report(models_dir: Path) -> dict[str, Any] | None:
         return None
     if not model.exists():
         return None
-    cache = CACHE_DIR / f"eval_migration_{hashlib.sha256(model.read_bytes()).hexdigest()[:16]}.json"
+    cache = CACHE_DIR / f"eval_migration_{code_version(['training.eval_migration'], [model])}.json"
     if cache.exists():
         return dict(json.loads(cache.read_text()))
     result = module.evaluate_migration(split_seeds("test"), model, THREADS)
@@ -178,11 +184,8 @@ def migration_report(models_dir: Path) -> dict[str, Any] | None:
 def cached_rows(
     onnx_path: Path, sigma: float, data: dict[str, Any], compute: Callable[[], list[dict[str, Any]]]
 ) -> list[dict[str, Any]]:
-    """Per-sample rows of one model at one noise level, cached by the ONNX file's hash and the test size."""
-    import hashlib
-
-    digest = hashlib.sha256(onnx_path.read_bytes()).hexdigest()[:16]
-    cache = CACHE_DIR / f"eval_rows_{digest}_{sigma}_{len(data['seed'])}.json"
+    """Per-sample rows of one model at one noise level, cached by the code version (with the ONNX file)."""
+    cache = CACHE_DIR / f"eval_rows_{code_version([_ME], [onnx_path])}_{sigma}_{len(data['seed'])}.json"
     if cache.exists():
         return list(json.loads(cache.read_text()))
     rows = compute()
@@ -191,9 +194,9 @@ def cached_rows(
 
 
 def reference_rows(data: dict[str, Any]) -> dict[str, Any]:
-    """Table I rows of the geometric fit and the truth floor (cached: they do not depend on the models)."""
+    """Table I rows of the geometric fit, the truth floor and the sparse input (cached by the code version)."""
     seeds = [int(x) for x in data["seed"]]
-    cache = CACHE_DIR / f"eval_reference_{len(seeds)}.json"
+    cache = CACHE_DIR / f"eval_reference_{code_version([_ME])}_{len(seeds)}.json"
     if cache.exists():
         cached = json.loads(cache.read_text())
         if cached["seeds"] == seeds:
@@ -201,7 +204,8 @@ def reference_rows(data: dict[str, Any]) -> dict[str, Any]:
     failures: list[int] = []
     geometric = score(geometric_prediction(data, failures), data)
     rows = {"geometric_no_pipe_seeds": failures,
-            "per_sample_reference": {"geometric": geometric, "truth_floor": score(truth_floor(data), data)}}
+            "per_sample_reference": {"geometric": geometric, "truth_floor": score(truth_floor(data), data),
+                                     "sparse_copy": score(lambda i: np.asarray(data["sparse"][i]), data)}}
     cache.write_text(json.dumps({"seeds": seeds, "rows": rows}))
     return rows
 
@@ -230,9 +234,8 @@ def evaluate(
     report["geometric_no_pipe_seeds"] = reference["geometric_no_pipe_seeds"]
     for name, rows in reference["per_sample_reference"].items():
         report["table1"][name] = summarise(rows)
-        if name == "geometric":
+        if name != "truth_floor":  # the baselines each model's standing is stated against
             report["per_sample"][name] = rows
-    report["table1"]["sparse_copy"] = summarise(score(lambda i: np.asarray(data["sparse"][i]), data))
     report["migrationnet"] = migration_report(models_dir) if with_migration else None
     return report
 
@@ -288,7 +291,12 @@ def _row(cells: list[str]) -> str:
 def markdown(report: dict[str, Any]) -> str:
     """The report as Markdown tables (Table I overall and per case, Table II, latency, training)."""
     t1 = report["table1"]
-    lines = [f"# Completion evaluation ({report['test_samples']} held-out test scenes)", "",
+    lines = [f"# Completion evaluation ({report['test_samples']} held-out test scenes): component scores from "
+             "degraded truth masks", "",
+             "Every model here is fed the test sample's sparse cloud registered from degraded **truth masks** "
+             "(training.pointcloud_data: the true cross-sections with dropped and speckled pixels), not from "
+             "interpreted B-scans: these tables score the completion alone. End to end from simulated and FDTD "
+             "B-scans, velocity estimated, see eval_end_to_end.md and eval_end_to_end_fdtd.md.", "",
              "Clouds normalised to the unit cube (DESIGN §6); CD2×10³, CD1×10², F-score at 0.01.", "",
              "## Table I — overall", "", _row(["method", "CD2×10³", "median CD2×10³", "CD1×10²", "F@1%"]),
              _row(["---"] * 5)]
@@ -318,6 +326,7 @@ def markdown(report: dict[str, Any]) -> str:
             variant = describe_variant(name, t.get("model_config", {}))
             lines.append(_row([NAMES.get(name, name), variant, *cells, f"{t.get('best_val_cd2_e3', float('nan')):.3f}",
                                str(t["onnx_mb"])]))
+    lines += ["", "## Standing against the baselines (per test sample, CD2)", "", *standing_lines(report)]
     lines += [*targets(report), "", REDUCTIONS]
     lines += ["", f"Geometric fit found no pipe (scored on its sparse input) for seeds: "
               f"{report['geometric_no_pipe_seeds'] or 'none'}."]
@@ -352,6 +361,44 @@ REDUCTIONS = """## Sizes vs the paper (2-core CPU budget)
   training (seeds 323, 353: a speckle blob on one line made the cube tiny; one such sample's loss was
   ~10³ times a normal one and swamped the gradient of every epoch). The test split has none.
 """
+
+
+BASELINES = ("sparse_copy", "geometric")
+
+
+def standing(report: dict[str, Any]) -> dict[str, dict[str, dict[str, float]]]:
+    """Each scored model against each baseline: on how many test samples its CD2 is lower, and both means
+    and medians — from the per-sample rows, so tests/test_shipped_completion.py can check them."""
+    per = report["per_sample"]
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for name in (n for n in per if n not in BASELINES):
+        mine = {r["seed"]: r["cd2"] for r in per[name]}
+        for base in (b for b in BASELINES if b in per):
+            theirs = {r["seed"]: r["cd2"] for r in per[base]}
+            seeds = [k for k in mine if k in theirs]
+            a, b = np.array([mine[k] for k in seeds]), np.array([theirs[k] for k in seeds])
+            out.setdefault(name, {})[base] = {
+                "closer": int(np.sum(a < b)), "samples": len(seeds), "mean_e3": 1e3 * float(np.mean(a)),
+                "base_mean_e3": 1e3 * float(np.mean(b)), "median_e3": 1e3 * float(np.median(a)),
+                "base_median_e3": 1e3 * float(np.median(b))}
+    return out
+
+
+def standing_lines(report: dict[str, Any]) -> list[str]:
+    """The standing as EVAL.md states it, one line per model and baseline."""
+    def word(x: float, y: float) -> str:
+        return "better" if x < y else "worse"
+
+    lines = []
+    for name, bases in standing(report).items():
+        for base, s in bases.items():
+            lines.append(
+                f"* {NAMES.get(name, name)} vs {NAMES[base]}: lower CD2 on {s['closer']} of {s['samples']} samples; "
+                f"mean CD2×10³ {s['mean_e3']:.3f} vs {s['base_mean_e3']:.3f} "
+                f"({word(s['mean_e3'], s['base_mean_e3'])}), "
+                f"median {s['median_e3']:.3f} vs {s['base_median_e3']:.3f} "
+                f"({word(s['median_e3'], s['base_median_e3'])})")
+    return lines
 
 
 def targets(report: dict[str, Any]) -> list[str]:

@@ -11,6 +11,12 @@ The shipped model's full recipe is in its card (models/migrationnet.json, "repro
 
 A checkpoint is written after every epoch (…_last.pt, with optimiser and scheduler for --resume) and
 whenever the validation IoU improves (…_best.pt); progress goes to stdout and training/logs/.
+
+The budget is epochs, with fixed seeds: the OneCycle schedule spans exactly --epochs × the steps of
+an epoch, so the same command gives the same run on any machine (one thread); wall-clock time is only
+reported (epoch_s). A run's log (training/logs/NAME.jsonl) opens with a {"run": ...} line naming the
+options that define it, and --resume refuses a checkpoint written with other ones (that would mix two
+schedules into a run no command reproduces).
 """
 
 from __future__ import annotations
@@ -111,6 +117,14 @@ def data_description() -> str:
             f"{VELOCITY_JITTER:.0%}; validation: split 'val' (100 scenes, seeds 100000-100099)")
 
 
+RECIPE = ("epochs", "batch", "lr", "width", "seed", "threads", "limit", "layers", "init")
+
+
+def recipe(args: argparse.Namespace) -> dict[str, Any]:
+    """The options that define a run (its budget, schedule, data and start), as its log and checkpoint record them."""
+    return {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items() if k in RECIPE}
+
+
 def train(args: argparse.Namespace) -> dict[str, Any]:
     """Train (or resume) and return the best validation metrics."""
     torch.set_num_threads(args.threads)
@@ -134,6 +148,9 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         print(f"initialised from {args.init}", flush=True)
     if args.resume and last.exists():
         state = torch.load(last, weights_only=False)
+        if state.get("recipe", recipe(args)) != recipe(args):
+            raise SystemExit(f"{last} was written by a run with {state['recipe']}, not {recipe(args)}: resume it "
+                             "with the same options, or start afresh with --no-resume or another --name")
         model.load_state_dict(state["model"])
         optimiser.load_state_dict(state["optimiser"])
         scheduler.load_state_dict(state["scheduler"])
@@ -141,6 +158,8 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         start_epoch, best, history = state["epoch"], state["best"], state["history"]
         print(f"resumed after epoch {start_epoch}", flush=True)
     log = (LOGS / f"{args.name}.jsonl").open("a")
+    if start_epoch == 0:
+        log.write(json.dumps({"run": recipe(args), "name": args.name}) + "\n")
     for epoch in range(start_epoch, args.epochs):
         t0 = time.perf_counter()
         order = torch.randperm(len(x_train), generator=gen).numpy()
@@ -174,7 +193,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
                  {"val": metrics, "history": history}, {})
         save(last, model, config, epoch + 1, args.seed, {"val": metrics, "history": history},
              {"optimiser": optimiser.state_dict(), "scheduler": scheduler.state_dict(),
-              "generator": gen.get_state(), "best": best, "history": history})
+              "generator": gen.get_state(), "best": best, "history": history, "recipe": recipe(args)})
     log.close()
     return best
 

@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gprbot.config import Config, model_path
 from gprbot.errors import InterpretationError
@@ -23,8 +24,8 @@ from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import CrossingHint
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.migrationnet import MigrationNetInterpreter
-from gprbot.reconstruct.completion import geometric_completion
-from gprbot.reconstruct.register import register_slice, resample_cloud
+from gprbot.reconstruct.completion import Reconstruction, geometric_completion
+from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 from gprbot.reconstruct.survey_result import LineResult, SurveyResult
 
 
@@ -81,6 +82,23 @@ def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detecti
     return tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in found.rebars)
 
 
+def complete_slices(slices: Sequence[SliceCloud], sparse: NDArray[np.float64], cfg: Config,
+                    rng: np.random.Generator) -> tuple[Reconstruction, dict[str, float]]:
+    """The configured completion (reconstruction.completion) of the registered slices and their sparse cloud.
+
+    The one dispatch on the completion's name: the worker and training.eval_end_to_end both call it, so a
+    completion added here is what both run. Returns the reconstruction and the model's timings (seconds).
+    """
+    if cfg.reconstruction.completion == "gprnet":
+        # GPRNet gives the dense cloud; the pipes (pipes.json) still come from the fit through the slices,
+        # which needs to know which points came from which survey line.
+        completion = gprnet_completion(cfg.reconstruction.gprnet_model, cfg.reconstruction.model_threads,
+                                       cfg.models_dir)
+        return gprnet_reconstruction(slices, sparse, cfg.reconstruction, completion, rng), {
+            "gprnet": completion.last_seconds}
+    return geometric_completion(slices, cfg.reconstruction, rng), {}
+
+
 def survey_steps(n_lines: int) -> int:
     """How many times reconstruct_survey calls on_step: preprocess, velocity, each line, completion."""
     return n_lines + 3
@@ -119,15 +137,8 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     slices = [lr.slice for lr in lines]
     points = np.concatenate([s.points for s in slices]) if slices else np.zeros((0, 3))
     sparse = resample_cloud(points, cfg.reconstruction.sparse_points, rng) if len(points) else points
-    if cfg.reconstruction.completion == "gprnet":
-        # GPRNet gives the dense cloud; the pipes (pipes.json) still come from the fit through the slices,
-        # which needs to know which points came from which survey line.
-        completion = gprnet_completion(cfg.reconstruction.gprnet_model, cfg.reconstruction.model_threads,
-                                       cfg.models_dir)
-        reconstruction = gprnet_reconstruction(slices, sparse, cfg.reconstruction, completion, rng)
-        timings["gprnet"] = completion.last_seconds
-    else:
-        reconstruction = geometric_completion(slices, cfg.reconstruction, rng)
+    reconstruction, completion_timings = complete_slices(slices, sparse, cfg, rng)
+    timings |= completion_timings
     timings["reconstruct"] = time.perf_counter() - t0
     step("completion")
     return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings)
