@@ -96,7 +96,10 @@ class InterpretationConfig:
 class ReconstructionConfig:
     """Registration of slices in 3D and completion into a dense cloud."""
 
-    completion: Literal["geometric", "gprnet"] = "geometric"
+    # geometric: the axis + radius fit; extended: the fit with every free pipe end pushed on to the survey's
+    # edge; refined: the fit continued, pruned and corrected by the FitRefiner (models/fit_refiner.onnx);
+    # gprnet: GPRNet's dense cloud on the fit's pipes
+    completion: Literal["geometric", "extended", "refined", "gprnet"] = "geometric"
     # The resampling/completion RNG's seed. None: sim.seed, which seeded it before this key existed, so
     # older configs and run logs reconstruct to the same bytes; set it on the robot, which has no sim.
     seed: int | None = None
@@ -105,6 +108,7 @@ class ReconstructionConfig:
     cluster_distance_m: float = 0.08
     min_slices_per_pipe: int = 2
     gprnet_model: str = "models/gprnet.onnx"  # used when completion is gprnet; see model_path()
+    refiner_model: str = "models/fit_refiner.onnx"  # used when completion is refined
     model_threads: int = 2
 
 

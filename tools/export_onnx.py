@@ -41,6 +41,9 @@ class ModelEntry:
     outputs: tuple[tuple[str, tuple[int | str, ...], str], ...]
     normalisation: str
     extra: dict[str, Any] = field(default_factory=dict)
+    # "module:function(batch) -> tuple of tensors": parity inputs where random normal ones are not what the model
+    # sees (one-hot columns; kNN on points of a unit cube, where a tie between two neighbours is a rounding flip)
+    examples: str | None = None
 
 
 def _migrationnet_entry() -> ModelEntry:
@@ -112,11 +115,14 @@ def _refiner_entry() -> ModelEntry:
         ((rt.SPARSE_NAME, (rt.SPARSE_POINTS, 3), "sparse cloud normalised to the unit cube (see normalisation)"),
          (rt.FIT_NAME, (rt.FIT_POINTS, 3), "points inside the geometric fit's rods, same frame"),
          (rt.FIT_PIPES_NAME, (rt.FIT_POINTS, rt.MAX_PIPES), pipes),
-         (rt.QUERY_NAME, ("points", 3), "rod points to correct, same frame"),
-         (rt.QUERY_PIPES_NAME, ("points", rt.MAX_PIPES), pipes)),
-        ((rt.LOGITS_NAME, (rt.MAX_PIPES,), "logit that each fitted pipe is real (sigmoid → probability)"),
+         (rt.QUERY_NAME, ("points", 3), "candidate points inside the rods continued to the survey's edge, same frame"),
+         (rt.QUERY_PIPES_NAME, ("points", rt.MAX_PIPES), pipes),
+         (rt.BEYOND_NAME, ("points", 1), "how far each query point lies past its pipe's fitted part, along the "
+          "axis (0 inside it), same units")),
+        ((rt.LOGITS_NAME, ("points",), "logit that the query point lies inside a real pipe (sigmoid → probability)"),
          (rt.REFINED_NAME, ("points", 3), "the query points moved by the learned correction, same frame")),
         "points centred on the sparse cloud's bounding-box centre and divided by its longest side",
+        examples="training.refine_model:example_inputs",
     )
 
 
@@ -178,8 +184,12 @@ def export(model_name: str, checkpoint: Path, out: Path, batch: int = 2) -> dict
     model.load_state_dict(state["model"])
     model.eval()
     generator = torch.Generator().manual_seed(0)
-    example = tuple(torch.randn(batch, *(d if isinstance(d, int) else 64 for d in shape), generator=generator)
-                    for _, shape, _ in entry.inputs)
+    if entry.examples:
+        module_name, function = entry.examples.split(":")
+        example = tuple(getattr(importlib.import_module(module_name), function)(batch))
+    else:
+        example = tuple(torch.randn(batch, *(d if isinstance(d, int) else 64 for d in shape), generator=generator)
+                        for _, shape, _ in entry.inputs)
     names_in = [n for n, _, _ in entry.inputs]
     names_out = [n for n, _, _ in entry.outputs]
     dynamic = {n: {0: "batch"} | {i + 1: d for i, d in enumerate(shape) if isinstance(d, str)}

@@ -34,6 +34,7 @@ from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.pipeline import complete_slices, interpret_line, survey_velocity
 from gprbot.progress import track
 from gprbot.reconstruct.completion import Reconstruction
+from gprbot.reconstruct.extension import survey_footprint
 from gprbot.reconstruct.register import resample_cloud
 from gprbot.simulated.evaluation import compare_to_truth
 from training.chamfer import cloud_metrics
@@ -44,7 +45,8 @@ from training.random_scenes import CASES
 
 ROOT = Path(__file__).resolve().parents[1]
 INTERPRETERS = ("classical", "migrationnet")
-COMPLETIONS = ("geometric", "gprnet")  # names of reconstruction.completion; a new one is scored by adding it here
+# names of reconstruction.completion; a new one is scored by adding it here
+COMPLETIONS = ("geometric", "extended", "refined", "gprnet")
 _RNG_TAG = 0xE2E
 NOTHING = np.zeros((1, 3), dtype=np.float32)  # "nothing found": one point at the centre of the unit cube
 
@@ -91,6 +93,7 @@ def evaluate_survey(survey: Survey, base: Config) -> list[dict[str, Any]]:
         velocity, _, hints = survey_velocity(processed, cfg)
     except GprbotError as exc:  # no velocity: every chain refuses the survey
         return [refused(m, c, exc) for m in INTERPRETERS for c in COMPLETIONS]
+    footprint = survey_footprint({line: b.positions for line, b in processed.items()})
     rows = []
     for method in INTERPRETERS:
         cfg = chain_config(base, survey, method, COMPLETIONS[0])
@@ -107,7 +110,7 @@ def evaluate_survey(survey: Survey, base: Config) -> list[dict[str, Any]]:
         for completion in COMPLETIONS:
             try:  # each completion gets the same random stream, so they differ by the method alone
                 recon, _ = complete_slices(slices, sparse, chain_config(base, survey, method, completion),
-                                           np.random.default_rng([survey.seed, _RNG_TAG, 2]))
+                                           np.random.default_rng([survey.seed, _RNG_TAG, 2]), footprint)
             except GprbotError as exc:
                 rows.append(refused(method, completion, exc))
                 continue

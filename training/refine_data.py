@@ -21,11 +21,11 @@ training scenes, so on them it is better than on unseen ones: half the training 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import multiprocessing
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,6 +44,7 @@ from gprbot.reconstruct.extension import Footprint, rod_candidates, survey_footp
 from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 from gprbot.sim.scene import Scene
 from gprbot.sim.truth import sample_pipe_interiors
+from training.code_version import code_version
 from training.migration_data import simulate_line
 from training.random_scenes import CASES, SPLIT_SIZES, SurveySpec, gpr_config, scene_for_seed, split_seeds
 
@@ -55,6 +56,7 @@ QUERY_POINTS = 4096
 DENSE_POINTS = 8192
 VELOCITY_JITTER = 0.012  # σ of the relative velocity error (the end-to-end estimate's median |error| is 0.8 %)
 INSIDE_MARGIN_M = 0.015  # a rod point within a true pipe's radius + this lies inside it (the fit's radii are ±10 %)
+Method = Literal["classical", "migrationnet"]
 _RNG_TAG = 0x52464E  # separates this module's draws from the scene's
 # The files whose code makes the samples: change one and the cache is rebuilt.
 _SOURCES = ("training/refine_data.py", "training/random_scenes.py", "training/migration_data.py", "gprbot/sim",
@@ -80,17 +82,18 @@ class RefineSample:
     scale: float
 
 
-def code_version() -> str:
-    """A digest of the sources that make the samples (the cache key)."""
-    digest = hashlib.sha256()
-    for name in _SOURCES:
-        path = ROOT / name
-        for file in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
-            digest.update(file.read_bytes())
-    return digest.hexdigest()[:12]
+def data_version() -> str:
+    """The cache key: training.code_version over the sources that make the samples.
+
+    An explicit list rather than the import closure of this module: that closure runs through
+    gprbot.infer.pipeline into the runtime of the refiner itself, whose edits do not change a sample.
+    """
+    files = [f for name in _SOURCES for f in
+             (sorted((ROOT / name).rglob("*.py")) if (ROOT / name).is_dir() else [ROOT / name])]
+    return code_version((), files)
 
 
-def interpreted_slices(scene: Scene, spec: SurveySpec, method: str, rng: np.random.Generator,
+def interpreted_slices(scene: Scene, spec: SurveySpec, method: Method, rng: np.random.Generator,
                        base: Config) -> tuple[list[SliceCloud], Footprint]:
     """Every kept line simulated, preprocessed, interpreted by `method` and registered at its recorded
     positions; and the footprint those positions cover."""
@@ -117,7 +120,7 @@ def inside_truth(points: NDArray[np.float64], scene: Scene) -> NDArray[np.float3
 def make_sample(seed: int, base: Config) -> RefineSample | None:
     """The sample of a split seed, or None when the interpreters refused it or no pipe was fitted."""
     scene, spec = scene_for_seed(seed)
-    method = "classical" if (seed // len(CASES)) % 2 == 0 else "migrationnet"  # every case sees both
+    method: Method = "classical" if (seed // len(CASES)) % 2 == 0 else "migrationnet"  # every case sees both
     rng = np.random.default_rng([seed, _RNG_TAG])
     try:
         slices, footprint = interpreted_slices(scene, spec, method, rng, base)
@@ -156,7 +159,7 @@ def _sample_of(seed: int) -> RefineSample | None:
 def cache_path(split: str, limit: int | None) -> Path:
     """Where a split's arrays are cached (keyed on the code version and the sample count)."""
     whole = limit is None or limit >= SPLIT_SIZES[split]
-    return CACHE_DIR / f"refine_{split}_{code_version()}{'' if whole else f'_n{limit}'}.npz"
+    return CACHE_DIR / f"refine_{split}_{data_version()}{'' if whole else f'_n{limit}'}.npz"
 
 
 def build_split(split: str, limit: int | None = None, workers: int = 1) -> dict[str, NDArray[np.generic]]:
@@ -195,7 +198,7 @@ def main() -> None:
     for split in args.splits:
         start = time.perf_counter()
         arrays = build_split(split, args.limit, args.workers)
-        past = arrays["beyond"] > 0
+        past = np.asarray(arrays["beyond"], dtype=np.float64) > 0
         print(f"{split}: {len(arrays['seed'])} samples ({len(arrays['skipped'])} skipped) in "
               f"{time.perf_counter() - start:.0f} s; query points inside a true pipe: "
               f"{arrays['inside'][~past].mean():.2f} on the fitted parts, {arrays['inside'][past].mean():.2f} past "

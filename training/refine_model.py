@@ -86,6 +86,20 @@ class FitRefiner(nn.Module):
         return self.logit(hidden).squeeze(-1), query + MAX_OFFSET * torch.tanh(self.offset(hidden))
 
 
+def example_inputs(batch: int, fit: int = 1024, query: int = 4096, pipes: int = 12) -> tuple[torch.Tensor, ...]:
+    """Inputs shaped and distributed as the runtime's (points in the unit cube, one-hot pipes), for export checks."""
+    gen = torch.Generator().manual_seed(0)
+
+    def cube(n: int) -> torch.Tensor:
+        return torch.rand(batch, n, 3, generator=gen) - 0.5
+
+    def owners(n: int) -> torch.Tensor:
+        return nn.functional.one_hot(torch.randint(0, pipes, (batch, n), generator=gen), pipes).float()
+
+    beyond = 0.1 * torch.rand(batch, query, 1, generator=gen)
+    return cube(1500), cube(fit), owners(fit), cube(query), owners(query), beyond
+
+
 def build_fit_refiner(**cfg: object) -> FitRefiner:
     """The exporter's builder (tools/export_onnx.py)."""
     return FitRefiner(**cfg)  # type: ignore[arg-type]

@@ -24,7 +24,9 @@ from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import CrossingHint
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.migrationnet import MigrationNetInterpreter
+from gprbot.infer.refine import FitRefinerModel, refined_reconstruction
 from gprbot.reconstruct.completion import Reconstruction, geometric_completion
+from gprbot.reconstruct.extension import Footprint, survey_footprint
 from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 from gprbot.reconstruct.survey_result import LineResult, SurveyResult
 
@@ -82,13 +84,31 @@ def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detecti
     return tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in found.rebars)
 
 
-def complete_slices(slices: Sequence[SliceCloud], sparse: NDArray[np.float64], cfg: Config,
-                    rng: np.random.Generator) -> tuple[Reconstruction, dict[str, float]]:
+@functools.lru_cache(maxsize=2)
+def fit_refiner(configured_path: str, threads: int, models_dir: str | None = None) -> FitRefinerModel:
+    """The FitRefiner's session, loaded and warmed up once per process."""
+    return FitRefinerModel(model_path(configured_path, models_dir), threads)
+
+
+def complete_slices(
+    slices: Sequence[SliceCloud], sparse: NDArray[np.float64], cfg: Config, rng: np.random.Generator,
+    footprint: Footprint | None = None,
+) -> tuple[Reconstruction, dict[str, float]]:
     """The configured completion (reconstruction.completion) of the registered slices and their sparse cloud.
 
     The one dispatch on the completion's name: the worker and training.eval_end_to_end both call it, so a
     completion added here is what both run. Returns the reconstruction and the model's timings (seconds).
+    `footprint` (survey_footprint of the lines' positions) is where the refined completion may continue pipes.
     """
+    if cfg.reconstruction.completion in ("refined", "extended"):
+        if footprint is None:
+            raise InterpretationError(f"the {cfg.reconstruction.completion} completion needs the survey's footprint "
+                                      "(the lines' positions)")
+        if cfg.reconstruction.completion == "extended":  # the refiner's baseline: every pipe continued by rule
+            return refined_reconstruction(slices, sparse, footprint, cfg.reconstruction, None, rng), {}
+        refiner = fit_refiner(cfg.reconstruction.refiner_model, cfg.reconstruction.model_threads, cfg.models_dir)
+        return refined_reconstruction(slices, sparse, footprint, cfg.reconstruction, refiner, rng), {
+            "refiner": refiner.last_seconds}
     if cfg.reconstruction.completion == "gprnet":
         # GPRNet gives the dense cloud; the pipes (pipes.json) still come from the fit through the slices,
         # which needs to know which points came from which survey line.
@@ -137,7 +157,8 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     slices = [lr.slice for lr in lines]
     points = np.concatenate([s.points for s in slices]) if slices else np.zeros((0, 3))
     sparse = resample_cloud(points, cfg.reconstruction.sparse_points, rng) if len(points) else points
-    reconstruction, completion_timings = complete_slices(slices, sparse, cfg, rng)
+    footprint = survey_footprint({line: b.positions for line, b in processed.items()}) if processed else None
+    reconstruction, completion_timings = complete_slices(slices, sparse, cfg, rng, footprint)
     timings |= completion_timings
     timings["reconstruct"] = time.perf_counter() - t0
     step("completion")

@@ -9,8 +9,12 @@
    the accepted points may reach past where the fit stopped (the pipe goes on).
 4. The dense cloud is cfg.dense_points of the accepted, moved points.
 
+Without a model (completion "extended") every candidate is accepted and none is moved: the fit pushed on
+to the survey's edge by rule — the baseline that says how much of the refiner's gain is the network's.
+
 pipes.json gets the kept pipes, each axis cut to the span of its accepted points and its confidence the
-mean probability over its fitted part. Radii are the fit's (the corrections move cloud points, not axes).
+mean probability over its fitted part, its radius that of its corrected points, and `inferred_m` how
+much of it at each end no line saw. Axes are the fit's (cut or continued; the corrections move points).
 """
 
 from __future__ import annotations
@@ -24,10 +28,12 @@ from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
 from gprbot.errors import InterpretationError, ModelError
+from gprbot.geometry import polyline_length
 from gprbot.infer.gprnet import normalisation
 from gprbot.infer.onnx_model import OnnxModel
 from gprbot.reconstruct.completion import Reconstruction, fit_pipes
 from gprbot.reconstruct.extension import Footprint, arclength_on, cut_polyline, rod_candidates
+from gprbot.reconstruct.pipe_fit import fit_radius
 from gprbot.reconstruct.register import SliceCloud, resample_cloud
 
 SPARSE_NAME, FIT_NAME, FIT_PIPES_NAME = "sparse_points", "fit_points", "fit_pipes"
@@ -37,6 +43,7 @@ SPARSE_POINTS = 1500
 FIT_POINTS = 1024
 QUERY_POINTS = 16384  # candidates; about half are accepted on a typical survey, cfg.dense_points are kept
 MAX_PIPES = 12  # pipes with their own column; points of further pipes see no pipe feature (rows of zeros)
+MIN_RADIUS_POINTS = 200
 ACCEPT = 0.5  # a point is accepted at this probability, a pipe when this share of its fitted part is
 
 
@@ -87,9 +94,9 @@ def accepted(probability: NDArray[np.float64], owner: NDArray[np.int64], beyond:
 
 def refined_reconstruction(
     slices: Sequence[SliceCloud], sparse_m: NDArray[np.float64], footprint: Footprint, cfg: ReconstructionConfig,
-    model: FitRefinerModel, rng: np.random.Generator,
+    model: FitRefinerModel | None, rng: np.random.Generator,
 ) -> Reconstruction:
-    """The fit's pipes continued, pruned and corrected by the network; the dense cloud inside them."""
+    """The fit's pipes continued, pruned and corrected by the network (None: continued by rule); the cloud in them."""
     pipes = fit_pipes(slices, cfg)
     if not pipes or len(sparse_m) == 0:
         return Reconstruction(pipes=(), dense=np.zeros((0, 3)), labels=np.zeros(0, dtype=np.intp))
@@ -105,22 +112,32 @@ def refined_reconstruction(
     def unit(x: NDArray[np.float64]) -> NDArray[np.float32]:
         return ((x - centre) / scale).astype(np.float32)
 
-    probability, moved = model.run(unit(sparse), unit(candidates.fit), onehot(candidates.fit_pipe),
-                                   unit(candidates.query), onehot(candidates.query_pipe),
-                                   (candidates.beyond_m / scale).astype(np.float32))
+    if model is None:
+        probability, moved = np.ones(len(candidates.query)), unit(candidates.query).astype(np.float64)
+    else:
+        probability, moved = model.run(unit(sparse), unit(candidates.fit), onehot(candidates.fit_pipe),
+                                       unit(candidates.query), onehot(candidates.query_pipe),
+                                       (candidates.beyond_m / scale).astype(np.float32))
     points, kept = accepted(probability, candidates.query_pipe, candidates.beyond_m, len(pipes))
     new_index = {old: new for new, old in enumerate(kept)}
     chosen = []
     for k in kept:
         mine = points & (candidates.query_pipe == k)
-        axis = candidates.extended[k].axis
+        axis, added = candidates.extended[k].axis, candidates.extended[k].added
         span = arclength_on(candidates.query[mine], axis) if mine.any() else np.array([0.0])
+        total = polyline_length(axis)
+        inferred = (max(0.0, added[0] - float(span.min())), max(0.0, float(span.max()) - (total - added[1])))
         fitted = (candidates.query_pipe == k) & (candidates.beyond_m <= 0.0)
         ends = tuple(None if e is None else new_index.get(e) for e in pipes[k].ends_on)
         cut = cut_polyline(axis, float(span.min()), float(span.max()))
-        chosen.append(replace(pipes[k], axis=cut, depth_of_cover_m=float(np.min(-cut[:, 2])) - pipes[k].radius_m,
+        moved_m = moved[mine] * scale + centre
+        # the radius of the corrected points (uniform in a disc: R = √(2·mean d²)), which carries the network's
+        # correction of the interpreter's section widths into pipes.json; the fit's when too few points stay
+        radius = fit_radius(moved_m, cut) if len(moved_m) >= MIN_RADIUS_POINTS else pipes[k].radius_m
+        chosen.append(replace(pipes[k], axis=cut, radius_m=radius, diameter_m=2.0 * radius,
+                              depth_of_cover_m=float(np.min(-cut[:, 2])) - radius,
                               confidence=float(np.mean(probability[fitted])) if fitted.any() else 0.0,
-                              ends_on=(ends[0], ends[1])))
+                              ends_on=(ends[0], ends[1]), inferred_m=inferred))
     pick = rng.choice(np.flatnonzero(points), size=cfg.dense_points,
                       replace=int(points.sum()) < cfg.dense_points)
     dense = moved[pick] * scale + centre

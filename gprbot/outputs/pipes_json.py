@@ -91,6 +91,9 @@ def pipes_document(reconstruction: Reconstruction, meta: Mapping[str, Any]) -> d
                 "pose_std_m": round(pipe.pose_std_m, _DECIMALS),
                 "n_slices": pipe.n_slices,
                 "ends_on": {"start": pipe.ends_on[0], "end": pipe.ends_on[1]},
+                # how much of the axis at each end no line saw (the refined completion continued it there)
+                "inferred_m": {"start": round(pipe.inferred_m[0], _DECIMALS),
+                               "end": round(pipe.inferred_m[1], _DECIMALS)},
                 "colour": "#{:02x}{:02x}{:02x}".format(*(int(c) for c in colours[index])),
             }
         )
@@ -101,6 +104,11 @@ def pipes_document(reconstruction: Reconstruction, meta: Mapping[str, Any]) -> d
 def write_pipes_json(path: str | os.PathLike[str], reconstruction: Reconstruction, meta: dict[str, Any]) -> None:
     """Write pipes.json: per pipe its axis (m, site frame), depth of cover, diameter, confidence, slices."""
     write_json_atomic(path, pipes_document(reconstruction, meta))
+
+
+def _inferred(record: Mapping[str, Any]) -> tuple[float, float]:
+    """The inferred lengths of a pipe record (absent in files from before they were written: none)."""
+    return float(record.get("start", 0.0)), float(record.get("end", 0.0))
 
 
 def read_pipes_json(path: str | os.PathLike[str]) -> list[PipeModel]:
@@ -119,6 +127,7 @@ def read_pipes_json(path: str | os.PathLike[str]) -> list[PipeModel]:
                 n_slices=int(p["n_slices"]),
                 ends_on=(p["ends_on"]["start"], p["ends_on"]["end"]),
                 pose_std_m=float(p.get("pose_std_m", 0.0)),  # absent in files from before it was written
+                inferred_m=_inferred(p.get("inferred_m", {})),
             )
             for p in document["pipes"]
         ]

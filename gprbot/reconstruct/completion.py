@@ -45,6 +45,8 @@ class PipeModel:
     n_slices: int
     ends_on: tuple[int | None, int | None] = (None, None)
     pose_std_m: float = 0.0  # RMS 1σ of the antenna positions on the lines that saw it (in `confidence`)
+    # axis length (m) at the start and at the end that no line saw: continued there by the completion
+    inferred_m: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,69 @@
+"""The refined completion's decisions (which points and pipes stay) and the shipped FitRefiner end to end."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gprbot.config import ReconstructionConfig
+from gprbot.errors import ModelError
+from gprbot.infer.refine import FitRefinerModel, accepted, onehot, refined_reconstruction
+from gprbot.reconstruct.completion import fit_pipes
+from gprbot.reconstruct.register import resample_cloud
+from training.random_scenes import scene_for_seed
+from training.refine_data import interpreted_slices
+
+MODEL = Path(__file__).resolve().parents[1] / "models" / "fit_refiner.onnx"
+
+
+def test_a_pipe_whose_fitted_part_is_mostly_rejected_is_dropped_and_its_extension_with_it() -> None:
+    owner = np.array([0, 0, 0, 0, 1, 1, 1, 1])
+    beyond = np.array([0.0, 0.0, 0.2, 0.3, 0.0, 0.0, 0.1, 0.1])
+    probability = np.array([0.9, 0.8, 0.7, 0.2, 0.1, 0.3, 0.9, 0.9])
+    points, kept = accepted(probability, owner, beyond, 2)
+    assert kept == [0]
+    assert points.tolist() == [True, True, True, False, False, False, False, False]
+
+
+def test_the_likeliest_pipe_stays_when_every_pipe_is_rejected() -> None:
+    owner = np.array([0, 0, 1, 1])
+    beyond = np.zeros(4)
+    points, kept = accepted(np.array([0.1, 0.2, 0.4, 0.3]), owner, beyond, 2)
+    assert kept == [1] and points.tolist() == [False, False, True, True]
+
+
+def test_pipes_beyond_the_one_hot_columns_see_no_pipe_feature() -> None:
+    hot = onehot(np.array([0, 2, 14]), n_columns=12)
+    assert hot.shape == (3, 12) and hot[0, 0] == 1 and hot[1, 2] == 1 and not hot[2].any()
+
+
+@pytest.mark.skipif(not MODEL.exists(), reason="models/fit_refiner.onnx not trained yet")
+def test_the_shipped_refiner_keeps_fitted_pipes_and_gives_a_full_dense_cloud() -> None:
+    from gprbot.config import load_config
+
+    scene, spec = scene_for_seed(200003)  # a test-split tee, not a training scene
+    rng = np.random.default_rng(0)
+    slices, footprint = interpreted_slices(scene, spec, "migrationnet", rng, load_config())
+    cfg = ReconstructionConfig()
+    sparse = resample_cloud(np.concatenate([s.points for s in slices]), 1500, rng)
+    fitted = fit_pipes(slices, cfg)
+    recon = refined_reconstruction(slices, sparse, footprint, cfg, FitRefinerModel(MODEL, threads=1), rng)
+    assert 1 <= len(recon.pipes) <= len(fitted)
+    assert recon.dense.shape == (cfg.dense_points, 3) and np.all(np.isfinite(recon.dense))
+    assert set(np.unique(recon.labels)) <= set(range(len(recon.pipes)))
+    xmin, xmax, ymin, ymax = footprint
+    slack = 0.06  # MAX_OFFSET of the unit cube, a few cm on this survey
+    assert np.all((recon.dense[:, 0] >= xmin - slack) & (recon.dense[:, 0] <= xmax + slack))
+    assert np.all((recon.dense[:, 1] >= ymin - slack) & (recon.dense[:, 1] <= ymax + slack))
+    for pipe in recon.pipes:
+        assert 0.0 <= pipe.confidence <= 1.0 and len(pipe.axis) >= 2
+
+
+def test_a_model_that_is_not_a_refiner_is_refused_with_what_to_do() -> None:
+    other = MODEL.parent / "gprnet.onnx"
+    if not other.exists():
+        pytest.skip("models/gprnet.onnx not committed")
+    with pytest.raises(ModelError, match="fit_refiner"):
+        FitRefinerModel(other, threads=1)
