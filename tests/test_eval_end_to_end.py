@@ -49,7 +49,7 @@ def test_a_refused_scene_is_scored_as_finding_nothing() -> None:
     rows = eval_end_to_end.evaluate_survey(survey, load_config())
     assert len(rows) == len(eval_end_to_end.INTERPRETERS) * len(eval_end_to_end.COMPLETIONS)
     assert all("hyperbola" in r["refused"] for r in rows)
-    assert all(r["true"] >= 1 and r["found"] == 0 and r["extra"] == 0 for r in rows)
+    assert all(r["true"] >= 1 and r["found"] == r["extra"] == r["partial"] == 0 for r in rows)
     assert survey.dense is not None
     nothing = cloud_metrics(eval_end_to_end.NOTHING, survey.dense)
     assert all(r["cd2"] == pytest.approx(nothing.cd2) for r in rows)

@@ -160,3 +160,28 @@ def test_shipped_model_finds_the_pipe() -> None:
     d = section.detections[0]
     assert d.x_m == pytest.approx(PIPE_X, abs=0.03) and d.depth_m == pytest.approx(PIPE_DEPTH, abs=0.03)
     assert d.radius_m == pytest.approx(PIPE_RADIUS, abs=0.02)
+
+
+def test_training_logs_its_recipe_and_resumes_only_the_same_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import argparse
+
+    from training import train_migrationnet as tm
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(4, 1, ROWS, COLS)).astype(np.float16)
+    y = (rng.random((4, 1, ROWS, COLS)) < 0.05).astype(np.uint8)
+    monkeypatch.setattr(tm, "build_split", lambda split, limit=None: split)
+    monkeypatch.setattr(tm, "load_split", lambda split: (x, y))
+    monkeypatch.setattr(tm, "CHECKPOINTS", tmp_path / "checkpoints")
+    monkeypatch.setattr(tm, "LOGS", tmp_path / "logs")
+    args = argparse.Namespace(epochs=1, batch=2, lr=1e-3, width=2, seed=0, threads=1, limit=4, name="tiny",
+                              resume=True, layers=0.0, keep_epochs=False, init=None)
+    tm.train(args)
+    first = json.loads((tmp_path / "logs" / "tiny.jsonl").read_text().splitlines()[0])
+    assert first == {"run": tm.recipe(args), "name": "tiny"} and first["run"]["epochs"] == 1
+    longer = argparse.Namespace(**(vars(args) | {"epochs": 2}))  # another schedule: not the same run
+    with pytest.raises(SystemExit, match="epochs"):
+        tm.train(longer)
+    tm.train(argparse.Namespace(**(vars(longer) | {"resume": False})))
