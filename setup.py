@@ -12,9 +12,9 @@ from pathlib import Path
 from setuptools import setup
 from setuptools.command.build_py import build_py
 
-# The models the shipped configs use (configs/sim_learned.yaml); the completion baselines (pcn, pfnet,
-# gprnet_pyramid) are for training/evaluate in a checkout and stay out of the wheel (~42 MB).
-SHIPPED_MODELS = ("migrationnet", "gprnet")
+# The models the shipped configs can select (interpretation.method, reconstruction.completion); the completion
+# baselines (pcn, pfnet, the GPRNet ablation) are for training/evaluate in a checkout and stay out of the wheel.
+SHIPPED_MODELS = ("migrationnet", "gprnet", "fit_refiner")
 
 
 class BuildWithModels(build_py):

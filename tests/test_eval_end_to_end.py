@@ -54,7 +54,8 @@ def test_a_refused_scene_is_scored_as_finding_nothing() -> None:
     nothing = cloud_metrics(eval_end_to_end.NOTHING, survey.dense)
     assert all(r["cd2"] == pytest.approx(nothing.cd2) for r in rows)
     summary = eval_end_to_end.summarise(rows)
-    assert summary["scenes"] == 4 and summary["refused"] == 4 and summary["pipe_recall"] == 0.0
+    n = len(eval_end_to_end.INTERPRETERS) * len(eval_end_to_end.COMPLETIONS)
+    assert summary["scenes"] == n and summary["refused"] == n and summary["pipe_recall"] == 0.0
     result = eval_end_to_end.evaluate([lambda: survey], "sim")
     text = eval_end_to_end.markdown(result, "cmd")
     assert "from simulated B-scans, velocity estimated: 1 surveys" in text

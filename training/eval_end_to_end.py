@@ -217,6 +217,36 @@ def _same_pipes(result: dict[str, Any], chain: str) -> str | None:
     return None
 
 
+HARD_CASES = ("bend", "tee", "missing")  # where the issue asks the learned completion for ≤ 0.7× the fit
+
+
+def target_lines(result: dict[str, Any]) -> list[str]:
+    """The learned completion's targets against the geometric fit, per interpreter; and against the rule."""
+    chains = result["chains"]
+    lines = ["## Targets (refined vs geometric, median CD2; ≤ 0.7× on bend, tee and missing, ≤ 1.0× overall, "
+             "recall and precision no worse)", ""]
+    for method in INTERPRETERS:
+        fit, ours, rule = (chains.get(f"{method} + {c}") for c in ("geometric", "refined", "extended"))
+        if fit is None or ours is None:
+            continue
+        cells = []
+        for case in (*HARD_CASES, "all"):
+            if case in fit and case in ours:
+                ratio = ours[case]["median_cd2_e3"] / fit[case]["median_cd2_e3"]
+                bar = 1.0 if case == "all" else 0.7
+                cells.append(f"{case} {ratio:.2f}× ({'met' if ratio <= bar else 'NOT met'})")
+        a, f = ours["all"], fit["all"]
+        recall = "met" if a["pipe_recall"] >= f["pipe_recall"] else "NOT met"
+        precision = "met" if a["pipe_precision"] >= f["pipe_precision"] else "NOT met"
+        lines.append(f"* {method}: {', '.join(cells)}; recall {a['pipe_recall']:.3f} vs {f['pipe_recall']:.3f} "
+                     f"({recall}), precision {a['pipe_precision']:.3f} vs {f['pipe_precision']:.3f} ({precision})")
+        if rule is not None:
+            by_case = ", ".join(f"{c} {ours[c]['median_cd2_e3'] / rule[c]['median_cd2_e3']:.2f}×"
+                                for c in (*HARD_CASES, "all") if c in ours and c in rule)
+            lines.append(f"  - the network's own share (refined / the fit continued by rule, median CD2): {by_case}")
+    return [*lines, ""] if len(lines) > 2 else []
+
+
 def markdown(result: dict[str, Any], command: str) -> str:
     """The chains as markdown tables: overall, then median CD2 and pipe recall per case."""
     title, feeds = SOURCES[result["source"]]
@@ -256,6 +286,7 @@ def markdown(result: dict[str, Any], command: str) -> str:
     lines += ["", f"Interpretation per survey (median, all lines): {timing}. Whole run {result['seconds'] / 60:.0f} "
               f"min at load average {result['load_average']:.1f} (2-core CPU shared with other jobs); code version "
               f"{result['code_version']} (training.code_version).", ""]
+    lines += target_lines(result)
     if refused:
         lines += ["Refusals:", "", *(f"- {r}" for r in refused), ""]
     lines += ["## Reproduce", "", "```", command, "```", ""]
