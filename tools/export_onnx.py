@@ -122,6 +122,19 @@ def _refiner_entry() -> ModelEntry:
         ((rt.LOGITS_NAME, ("points",), "logit that the query point lies inside a real pipe (sigmoid → probability)"),
          (rt.REFINED_NAME, ("points", 3), "the query points moved by the learned correction, same frame")),
         "points centred on the sparse cloud's bounding-box centre and divided by its longest side",
+        {"reproduce": [
+            "python -m training.refine_data train val --limit 900",
+            "python -m training.train_refine --epochs 6 --seed 0 --name fit_refiner_e6_s0  # and seeds 1, 2",
+            "python tools/export_onnx.py fit_refiner --checkpoint training/checkpoints/fit_refiner_e6_s0/best.pt "
+            "--out models/fit_refiner.onnx  # seeds 1, 2: --out models/fit_refiner_s1.onnx, _s2.onnx",
+            "python -m training.eval_end_to_end --limit 60",
+            "python -m training.eval_end_to_end --source fdtd",
+            "python -m training.evaluate --out models/",
+        ],
+         "budget": "6 epochs of the first 900 training seeds (852 usable samples, 106 steps of batch 8 per epoch), "
+                   "Adam 1e-3 with a cosine over the steps, one CPU thread; wall clock only reported (the three "
+                   "seeds trained at once beside other jobs on the 2-core CPU)",
+         "evaluation": "models/eval_end_to_end.md, models/eval_end_to_end_fdtd.md, models/EVAL.md"},
         examples="training.refine_model:example_inputs",
     )
 

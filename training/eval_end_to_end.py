@@ -46,16 +46,21 @@ from training.random_scenes import CASES
 ROOT = Path(__file__).resolve().parents[1]
 INTERPRETERS = ("classical", "migrationnet")
 # names of reconstruction.completion; a new one is scored by adding it here
-COMPLETIONS = ("geometric", "extended", "refined", "gprnet")
+# refined_sK: the refined completion with the FitRefiner of training seed K (models/fit_refiner_sK.onnx), the spread
+COMPLETIONS = ("geometric", "extended", "refined", "refined_s1", "refined_s2", "gprnet")
 _RNG_TAG = 0xE2E
 NOTHING = np.zeros((1, 3), dtype=np.float32)  # "nothing found": one point at the centre of the unit cube
 
 
 def chain_config(base: Config, survey: Survey, method: str, completion: str) -> Config:
     """The product config for one chain on one survey (its antenna settings; eps_r left unknown)."""
+    reconstruction = dataclasses.replace(base.reconstruction, completion=completion)  # type: ignore[arg-type]
+    if completion.startswith("refined_s"):
+        reconstruction = dataclasses.replace(reconstruction, completion="refined",
+                                             refiner_model=f"models/fit_refiner_{completion.split('_')[1]}.onnx")
     return dataclasses.replace(
         base, gpr=survey.gpr, interpretation=dataclasses.replace(base.interpretation, method=method),
-        reconstruction=dataclasses.replace(base.reconstruction, completion=completion),
+        reconstruction=reconstruction,
     )
 
 
