@@ -52,16 +52,16 @@ def test_cli_demo_bad_scene_is_one_clear_error(tmp_path: Path, capsys: pytest.Ca
         assert main(["demo", *mode, "--scene", "no_such_scene", "--out", str(tmp_path / "run")]) == 1
 
 
-def test_learned_config_runs_migrationnet_and_gprnet_and_finds_the_paper_slab_pipes(tmp_path: Path) -> None:
+def test_learned_config_runs_migrationnet_and_the_refiner_and_finds_the_paper_slab_pipes(tmp_path: Path) -> None:
     """configs/sim_learned.yaml: the shipped models end to end. Positions and depths are held to the demo's
     bounds; diameters are not — MigrationNet's masks overstate thin pipes (models/migrationnet_eval.md)."""
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "sim_learned.yaml")
-    assert cfg.interpretation.method == "migrationnet" and cfg.reconstruction.completion == "gprnet"
+    assert cfg.interpretation.method == "migrationnet" and cfg.reconstruction.completion == "refined"
     cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, poses="noise"))  # the filter is tested above
     demo = run_demo(cfg, load_scene("paper_slab"), tmp_path / "learned")
     print(demo.table)
-    assert demo.result.timings_s.get("gprnet", 0.0) > 0.0  # the dense cloud came from the ONNX model
+    assert demo.result.timings_s.get("refiner", 0.0) > 0.0  # the dense cloud came from the ONNX model
     assert all(m.found is not None for m in demo.matches), demo.table
     assert all(m.horizontal_err_m <= 0.03 and m.depth_err_m <= 0.03 for m in demo.matches), demo.table
     assert not demo.extras, demo.table
-    assert len(PlyData.read(str(demo.out_dir / "dense.ply"))["vertex"]) == 8064  # GPRNet's 896 seeds × 9
+    assert len(PlyData.read(str(demo.out_dir / "dense.ply"))["vertex"]) == cfg.reconstruction.dense_points

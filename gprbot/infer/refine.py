@@ -13,8 +13,8 @@ Without a model (completion "extended") every candidate is accepted and none is 
 to the survey's edge by rule — the baseline that says how much of the refiner's gain is the network's.
 
 pipes.json gets the kept pipes, each axis cut to the span of its accepted points and its confidence the
-mean probability over its fitted part, its radius that of its corrected points, and `inferred_m` how
-much of it at each end no line saw. Axes are the fit's (cut or continued; the corrections move points).
+mean probability over its fitted part, and `inferred_m` how much of it at each end no line saw. Axes
+and radii are the fit's (axes cut or continued; the corrections move cloud points only).
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from gprbot.infer.gprnet import normalisation
 from gprbot.infer.onnx_model import OnnxModel
 from gprbot.reconstruct.completion import Reconstruction, fit_pipes
 from gprbot.reconstruct.extension import Footprint, arclength_on, cut_polyline, rod_candidates
-from gprbot.reconstruct.pipe_fit import fit_radius
 from gprbot.reconstruct.register import SliceCloud, resample_cloud
 
 SPARSE_NAME, FIT_NAME, FIT_PIPES_NAME = "sparse_points", "fit_points", "fit_pipes"
@@ -43,7 +42,6 @@ SPARSE_POINTS = 1500
 FIT_POINTS = 1024
 QUERY_POINTS = 16384  # candidates; about half are accepted on a typical survey, cfg.dense_points are kept
 MAX_PIPES = 12  # pipes with their own column; points of further pipes see no pipe feature (rows of zeros)
-MIN_RADIUS_POINTS = 200
 ACCEPT = 0.5  # a point is accepted at this probability, a pipe when this share of its fitted part is
 
 
@@ -130,12 +128,9 @@ def refined_reconstruction(
         fitted = (candidates.query_pipe == k) & (candidates.beyond_m <= 0.0)
         ends = tuple(None if e is None else new_index.get(e) for e in pipes[k].ends_on)
         cut = cut_polyline(axis, float(span.min()), float(span.max()))
-        moved_m = moved[mine] * scale + centre
-        # the radius of the corrected points (uniform in a disc: R = √(2·mean d²)), which carries the network's
-        # correction of the interpreter's section widths into pipes.json; the fit's when too few points stay
-        radius = fit_radius(moved_m, cut) if len(moved_m) >= MIN_RADIUS_POINTS else pipes[k].radius_m
-        chosen.append(replace(pipes[k], axis=cut, radius_m=radius, diameter_m=2.0 * radius,
-                              depth_of_cover_m=float(np.min(-cut[:, 2])) - radius,
+        # The radius stays the fit's: re-measured from the corrected points (R = √(2·mean d²)) it came out
+        # worse end to end (median |diameter error| 16 % against the fit's 11 %, classical, 60 simulated surveys).
+        chosen.append(replace(pipes[k], axis=cut, depth_of_cover_m=float(np.min(-cut[:, 2])) - pipes[k].radius_m,
                               confidence=float(np.mean(probability[fitted])) if fitted.any() else 0.0,
                               ends_on=(ends[0], ends[1]), inferred_m=inferred))
     pick = rng.choice(np.flatnonzero(points), size=cfg.dense_points,
