@@ -100,7 +100,7 @@ def test_reconstruction_takes_pipes_from_the_fit_and_the_cloud_from_the_model(
 
 
 def test_a_few_training_steps_reduce_the_loss_and_resume(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Smoke run of the real training loop on a tiny synthetic set: a pipe-like rod, 2 epochs + resume."""
+    """Smoke run of the real training loop on a tiny synthetic set: a pipe-like rod, killed, resumed, refused."""
     rng = np.random.default_rng(4)
     t = rng.random((16, 8192, 1)) - 0.5
     dense = np.concatenate([0.05 * rng.standard_normal((16, 8192, 1)), t, 0.05 * rng.standard_normal((16, 8192, 1))],
@@ -113,12 +113,27 @@ def test_a_few_training_steps_reduce_the_loss_and_resume(tmp_path: Path, monkeyp
     monkeypatch.setattr(train_completion, "LOGS", tmp_path / "logs")
     monkeypatch.setattr(train_completion, "MODEL_CONFIGS", {"gprnet": TINY})
     common = ["--model", "gprnet", "--batch-size", "4", "--loss-points", "512", "--val-limit", "4", "--lr", "3e-3"]
-    first = train_completion.train(train_completion.parse_args([*common, "--epochs", "3"]))
-    history = first["history"]
-    assert len(history) == 3
+    # A run killed after its second epoch's checkpoint (the third validation never returns) ...
+    real_validate, calls = train_completion.validate, []
+
+    def validate_then_die(*args: object) -> dict[str, float]:
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt("killed")
+        return real_validate(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(train_completion, "validate", validate_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        train_completion.train(train_completion.parse_args([*common, "--epochs", "3"]))
+    monkeypatch.setattr(train_completion, "validate", real_validate)
+    # ... resumes where it stopped when the same command runs again, and ends where one unbroken run ends
+    resumed = train_completion.train(train_completion.parse_args([*common, "--epochs", "3"]))
+    history = resumed["history"]
+    assert [h["epoch"] for h in history] == [1, 2, 3]
     assert history[-1]["train_loss"] < 0.7 * history[0]["train_loss"]
-    resumed = train_completion.train(train_completion.parse_args([*common, "--epochs", "4"]))
-    assert [h["epoch"] for h in resumed["history"]] == [1, 2, 3, 4]
+    # another budget is another schedule: refused, not spliced onto this one
+    with pytest.raises(SystemExit, match="--fresh"):
+        train_completion.train(train_completion.parse_args([*common, "--epochs", "4"]))
     best = torch.load(tmp_path / "ckpt" / "gprnet" / "best.pt", weights_only=False)
     assert best["model_config"] == TINY and "optimizer" not in best
     assert best["data"]["left_out_seeds"] == [105] and best["data"]["train"] == 15
