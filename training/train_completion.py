@@ -19,6 +19,7 @@ import argparse
 import json
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -104,11 +105,8 @@ def learning_rate(base: float, step: int, total_steps: int) -> float:
     return base * (MIN_LR_FRACTION + (1.0 - MIN_LR_FRACTION) * 0.5 * (1.0 + math.cos(math.pi * f)))
 
 
-def train(args: argparse.Namespace) -> dict[str, Any]:
-    """Run (or resume) one training; returns the final history."""
-    torch.set_num_threads(args.threads)
-    torch.manual_seed(args.seed)
-    run_name = args.name or args.model
+def run_files(run_name: str) -> tuple[Path, Callable[[str], None]]:
+    """A run's checkpoint folder (created) and its `say`: print a line and append it to logs/<run>.log."""
     out_dir = CHECKPOINTS / run_name
     out_dir.mkdir(parents=True, exist_ok=True)
     LOGS.mkdir(parents=True, exist_ok=True)
@@ -118,6 +116,16 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         print(text, flush=True)
         with log_path.open("a") as log:
             log.write(text + "\n")
+
+    return out_dir, say
+
+
+def train(args: argparse.Namespace) -> dict[str, Any]:
+    """Run (or resume) one training; returns the final history."""
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    run_name = args.name or args.model
+    out_dir, say = run_files(run_name)
 
     train_data, val_data = load_split("train"), load_split("val")
     usable = np.abs(train_data["dense"]).max(axis=(1, 2)) <= MAX_TRUTH_EXTENT

@@ -17,7 +17,6 @@ import argparse
 import json
 import math
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,21 +24,17 @@ import torch
 from numpy.typing import NDArray
 from torch.nn import functional as F  # noqa: N812 (the usual name)
 
-from gprbot.infer.refine import MAX_PIPES
+from gprbot.infer.refine import MAX_PIPES, accepted
 from training.chamfer import chamfer_sq_terms
 from training.refine_data import build_split
 from training.refine_model import FitRefiner
+from training.train_completion import MAX_TRUTH_EXTENT, learning_rate, random_subset, run_files
 
-ROOT = Path(__file__).resolve().parent
-CHECKPOINTS = ROOT / "checkpoints"
-LOGS = ROOT / "logs"
 REFINE_WEIGHT = 1.0
 FIT_POINTS = 1024  # as gprbot.infer.refine feeds them
 QUERY_POINTS = 2048  # per step, of the sample's 4096 candidates (the runtime judges 16384)
 LOSS_POINTS = 2048
-MIN_LR_FRACTION = 0.05
 FAR = 10.0  # candidates outside the truth are moved this far so that no truth point picks them as its nearest
-MAX_TRUTH_EXTENT = 1.5  # as training.train_completion: a truth far outside the cube is a degenerate sample
 ARRAYS = ("sparse", "fit", "fit_pipe", "query", "query_pipe", "beyond", "inside", "dense")
 
 
@@ -72,12 +67,6 @@ def random_rows(b: int, m: int, n: int, gen: torch.Generator) -> torch.Tensor:
     return torch.stack([torch.randperm(m, generator=gen)[:n] for _ in range(b)])
 
 
-def subset(points: torch.Tensor, n: int, gen: torch.Generator) -> torch.Tensor:
-    """n random points of each cloud (B, M, 3)."""
-    index = random_rows(points.shape[0], points.shape[1], n, gen)
-    return torch.gather(points, 1, index.unsqueeze(-1).expand(-1, -1, 3))
-
-
 def thin(batch: dict[str, torch.Tensor], gen: torch.Generator) -> dict[str, torch.Tensor]:
     """FIT_POINTS of each sample's fitted-rod points and QUERY_POINTS of its candidates, drawn at random."""
     b = batch["fit"].shape[0]
@@ -102,29 +91,12 @@ def step_losses(model: FitRefiner, batch: dict[str, torch.Tensor], gen: torch.Ge
     """Candidate classification and refinement losses of one batch."""
     logits, moved = predict(model, batch)
     accept = F.binary_cross_entropy_with_logits(logits, batch["inside"])
-    return accept, refine_loss(moved, batch["inside"] > 0.5, subset(batch["dense"], LOSS_POINTS, gen))
+    return accept, refine_loss(moved, batch["inside"] > 0.5, random_subset(batch["dense"], LOSS_POINTS, gen))
 
 
 def tensors(arrays: dict[str, NDArray[Any]], rows: NDArray[np.intp]) -> dict[str, torch.Tensor]:
     """The model's arrays of some samples as tensors."""
     return {k: torch.from_numpy(np.ascontiguousarray(arrays[k][rows])) for k in ARRAYS}
-
-
-def accepted_points(logits: torch.Tensor, pipe: torch.Tensor, beyond: torch.Tensor) -> torch.Tensor:
-    """gprbot.infer.refine.accepted on a batch: accepted candidates of pipes whose fitted part is mostly accepted."""
-    probability = torch.sigmoid(logits)
-    out = torch.zeros_like(logits, dtype=torch.bool)
-    for i in range(len(logits)):
-        pipes = [int(k) for k in torch.unique(pipe[i])]
-        fitted = beyond[i] <= 0
-        scores = {k: float(probability[i][(pipe[i] == k) & fitted].mean()) if bool(((pipe[i] == k) & fitted).any())
-                  else 0.0 for k in pipes}
-        kept = [k for k in pipes if scores[k] >= 0.5] or [max(scores, key=lambda k: scores[k])]
-        mine = torch.isin(pipe[i], torch.tensor(kept))
-        out[i] = (probability[i] >= 0.5) & mine
-        if not bool(out[i].any()):
-            out[i] = mine & fitted
-    return out
 
 
 @torch.no_grad()
@@ -140,31 +112,26 @@ def validate(model: FitRefiner, arrays: dict[str, NDArray[Any]]) -> dict[str, fl
     accept, refine, correct, total, fit_cd2, ours_cd2 = [], [], 0, 0, [], []
     for start in range(0, len(arrays["seed"]), 16):
         batch = thin(tensors(arrays, np.arange(start, min(start + 16, len(arrays["seed"])))), gen)
-        truth = subset(batch["dense"], 2 * LOSS_POINTS, gen)
+        truth = random_subset(batch["dense"], 2 * LOSS_POINTS, gen)
         logits, moved = predict(model, batch)
         accept.append(float(F.binary_cross_entropy_with_logits(logits, batch["inside"])))
         refine.append(float(refine_loss(moved, batch["inside"] > 0.5, truth)))
         correct += int(((logits > 0) == (batch["inside"] > 0.5)).sum())
         total += logits.numel()
-        chosen = accepted_points(logits, batch["query_pipe"], batch["beyond"])
+        probability, pipe, beyond = torch.sigmoid(logits).numpy(), batch["query_pipe"].numpy(), batch["beyond"].numpy()
         for i in range(len(moved)):
             one = slice(i, i + 1)
             every = torch.ones(1, FIT_POINTS, dtype=torch.bool)
             fit_cd2.append(float(refine_loss(batch["fit"][one], every, truth[one])))
+            points, _ = accepted(probability[i], pipe[i], beyond[i], int(pipe[i].max()) + 1)  # the run-time rule
             # as many points as the fit's, so both clouds sit on the same sampling floor
-            rows = torch.multinomial(chosen[i].float(), FIT_POINTS, replacement=True, generator=gen)
+            rows = torch.multinomial(torch.from_numpy(points).float(), FIT_POINTS, replacement=True, generator=gen)
             ours = moved[i][rows].unsqueeze(0)
             ours_cd2.append(float(refine_loss(ours, every, truth[one])))
     model.train()
     return {"accept": float(np.mean(accept)), "refine": float(np.mean(refine)), "accuracy": correct / max(total, 1),
             "fit_median_cd2": float(np.median(fit_cd2)), "median_cd2": float(np.median(ours_cd2)),
             "fit_mean_cd2": float(np.mean(fit_cd2)), "mean_cd2": float(np.mean(ours_cd2))}
-
-
-def learning_rate(base: float, step: int, total: int) -> float:
-    """Cosine decay from base to MIN_LR_FRACTION·base over the run's steps."""
-    f = min(step / max(total, 1), 1.0)
-    return base * (MIN_LR_FRACTION + (1.0 - MIN_LR_FRACTION) * 0.5 * (1.0 + math.cos(math.pi * f)))
 
 
 def usable(arrays: dict[str, NDArray[Any]]) -> NDArray[np.bool_]:
@@ -176,15 +143,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     """Run (or resume) one training; returns the history."""
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
-    out_dir = CHECKPOINTS / args.name
-    out_dir.mkdir(parents=True, exist_ok=True)
-    LOGS.mkdir(parents=True, exist_ok=True)
-    log_path = LOGS / f"{args.name}.log"
-
-    def say(text: str) -> None:
-        print(text, flush=True)
-        with log_path.open("a") as log:
-            log.write(text + "\n")
+    out_dir, say = run_files(args.name)
 
     train_all = build_split("train", args.train_limit)
     val_all = build_split("val", args.val_limit)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.geometry import drop_repeated_vertices, sample_rods
+from gprbot.geometry import drop_repeated_vertices, polyline_length, sample_rods
 from gprbot.reconstruct.completion import PipeModel
 
 MAX_EXTENSION_M = 1.5  # no pipe end is pushed further than this, whatever the survey's size
@@ -113,7 +113,7 @@ def beyond_fit(
         if len(mine) == 0:
             continue
         s = arclength_on(points[mine], ext.axis)
-        total = float(np.sum(np.linalg.norm(np.diff(ext.axis, axis=0), axis=1)))
+        total = polyline_length(ext.axis)
         out[mine] = np.maximum.reduce([ext.added[0] - s, s - (total - ext.added[1]), np.zeros(len(s))])
     return out
 
