@@ -213,7 +213,8 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
     imu_drops = sum(rs_health[s].drops for s in ("gyro", "accel") if s in rs_health)
     print(f"IMU over the survey: {emitted1 - emitted0} samples pushed by the simulator, {gyro_n + accel_n} reached "
           f"the filter (gyro {gyro_n}, accel {accel_n}; those in flight at either end differ); driver "
-          f"frame-number drops {imu_drops} (whole run); filter late drops {stats.late_dropped} (any sensor)")
+          f"frame-number drops {imu_drops} (whole run); filter late drops (whole run) IMU {stats.imu_late_dropped}, "
+          f"wheels {stats.wheel_late_dropped}, VO {stats.vo_late_dropped}")
     cpu = {k: cpu1.get(k, 0.0) - cpu0.get(k, 0.0) for k in cpu1}
     by_id = {int(k.rsplit(":", 1)[1]): v for k, v in cpu.items()}
     loop_cpu = by_id.get(named["loop"], 0.0)

@@ -215,6 +215,7 @@ class FusionConfig:
     gyro_bias_from_rest: bool = True  # False: start from zero bias (when the start is not at rest)
     reorder_window_s: float = 0.1  # messages are processed this long after the newest one, in time order
     max_imu_wait_s: float = 2.0  # a lagging IMU holds the others back this long at most (then: a dead IMU)
+    max_wheel_wait_s: float = 0.3  # lagging wheel readings hold the others back this long at most
     propagation_step_s: float = 0.01  # IMU samples are averaged over this before each covariance step
     output_rate_hz: float = 100.0
     history_s: float = 900.0  # output poses kept for pose_at

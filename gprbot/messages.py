@@ -55,10 +55,15 @@ class ImuSample:
 
 @dataclass(frozen=True)
 class WheelSpeeds:
-    """Commanded or measured wheel angular speeds (rad/s), one per omni wheel."""
+    """Commanded or measured wheel angular speeds (rad/s), one per omni wheel.
+
+    `sample_offsets_s`: for measured speeds read one after another, when each was sampled relative
+    to t (≤ 0; None: all at t), so the filter compares each with its velocity at that instant.
+    """
 
     t: float
     speeds: NDArray[np.float64]
+    sample_offsets_s: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -147,18 +152,22 @@ class WheelEncoders:
     """Wheel encoder readings: counts (int64, unwrapped past the 32-bit wrap) and speeds (rad/s).
 
     `speed_spread_s`: how far apart the three speed requests left (0 in logs from before it existed).
-    The filter takes the three speeds as one instant; on a busy loop they are not, and while the wheels
-    speed up or stop their mixture reads as a motion the base did not make (see the issue 14 note).
+    `speed_offsets_s`: when each speed request left, relative to t (the last of them; None in older
+    logs, whose t is the requests' mean). On a busy loop the three leave up to hundreds of ms apart,
+    and taken as one instant while the wheels speed up or stop their mixture reads as a motion the
+    base did not make (a phantom 4 cm/s sideways put the fused pose 16 cm off in 3 s; issue 14).
     """
 
     t: float
     counts: NDArray[np.int64]
     speeds: NDArray[np.float64]
     speed_spread_s: float = 0.0
+    speed_offsets_s: NDArray[np.float64] | None = None
 
     def wheel_speeds(self) -> WheelSpeeds:
         """The measured speeds as the WheelSpeeds message that wheel odometry consumes."""
-        return WheelSpeeds(t=self.t, speeds=self.speeds.copy())
+        offsets = None if self.speed_offsets_s is None else self.speed_offsets_s.copy()
+        return WheelSpeeds(t=self.t, speeds=self.speeds.copy(), sample_offsets_s=offsets)
 
 
 

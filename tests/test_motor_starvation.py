@@ -16,6 +16,7 @@ import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gprbot.config import MotorsConfig
@@ -87,10 +88,13 @@ async def test_encoder_readings_are_stamped_when_the_speed_requests_left(
     assert took > 3 * BLOCK_S  # three stalls of 50 ms are inside this read
     assert len(written) == 6  # speeds of the three wheels first, then their counts
     speeds_sent = written[:3]
-    assert abs(reading.t - sum(speeds_sent) / 3) < 0.005  # the requests' times, not the replies'
-    # A stall between two speed requests: the three speeds are not one instant, and the reading says so
+    assert abs(reading.t - max(speeds_sent)) < 0.005  # the requests' times, not the replies'
+    # A stall between two speed requests: the three speeds are not one instant, and the reading says
+    # when each was sampled
     assert reading.speed_spread_s == pytest.approx(max(speeds_sent) - min(speeds_sent), abs=1e-3)
     assert reading.speed_spread_s >= BLOCK_S
+    assert reading.speed_offsets_s is not None
+    assert reading.speed_offsets_s == pytest.approx(np.array(speeds_sent) - max(speeds_sent), abs=5e-3)
 
 
 async def test_a_silent_controller_is_still_a_fault_within_100_ms(

@@ -35,6 +35,51 @@ DIM = 24
 _DIFFERENTIAL = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.sqrt([[2.0], [6.0]])
 
 
+class VelocityChanges:
+    """The IMU's integrated velocity change (odom) at each propagation step of the last second or so.
+
+    Lets a measurement sampled shortly before the state time be compared with the velocity then:
+    v(t_i) ≈ v − (Δv(now) − Δv(t_i)), with the IMU's own change and not the filter's corrections.
+    """
+
+    SIZE = 160  # propagation steps kept (1.6 s at the default 10 ms step)
+
+    def __init__(self) -> None:
+        self.t = np.full(self.SIZE, -math.inf)
+        self.dv = np.zeros((self.SIZE, 3))
+        self.total = np.zeros(3)
+        self.index = 0
+
+    def add(self, t: float, dv: FloatArray) -> None:
+        """One propagation step ending at t."""
+        self.total = self.total + dv
+        self.t[self.index], self.dv[self.index] = t, self.total
+        self.index = (self.index + 1) % self.SIZE
+
+    def since(self, times: FloatArray) -> FloatArray:
+        """Δv from each time to the newest step (rows); 0 before the first step, the oldest kept beyond."""
+        order = (np.arange(self.SIZE) + self.index) % self.SIZE
+        t, dv = self.t[order], self.dv[order]
+        kept = np.isfinite(t)
+        if kept.sum() < 2:
+            return np.zeros((len(times), 3))
+        t, dv = t[kept], dv[kept]
+        at = np.column_stack([np.interp(times, t, dv[:, k]) for k in range(3)])
+        change: FloatArray = dv[-1] - at
+        return change
+
+    def arrays(self) -> dict[str, FloatArray]:
+        """Its state, for the fusion snapshot."""
+        return {"dv_t": self.t.copy(), "dv": self.dv.copy(), "dv_total": self.total.copy(),
+                "dv_index": np.array([float(self.index)])}
+
+    def load(self, arrays: dict[str, FloatArray]) -> None:
+        """Restore `arrays()` (a snapshot from before it existed leaves it empty)."""
+        if "dv_t" in arrays:
+            self.t, self.dv, self.total = arrays["dv_t"].copy(), arrays["dv"].copy(), arrays["dv_total"].copy()
+            self.index = int(arrays["dv_index"][0])
+
+
 class ErrorStateEkf:
     """The filter proper: time-ordered calls only (PoseFuser does the ordering)."""
 
@@ -52,6 +97,7 @@ class ErrorStateEkf:
         self.floor_z = 0.0
         self._held_since = math.nan  # inputs are integrated (held) from here on
         self._sum_gyro, self._sum_accel = np.zeros(3), np.zeros(3)
+        self.velocity_changes = VelocityChanges()
         self._F = np.eye(DIM)
         self._I3 = np.eye(3)
         c = config
@@ -132,6 +178,7 @@ class ErrorStateEkf:
         self.v = self.v + acc * dt
         self.R = self.R @ step
         self.t = t
+        self.velocity_changes.add(t, acc * dt)
 
     def extrapolate(self, t: float) -> tuple[FloatArray, FloatArray]:
         """Position and attitude at a time shortly after the state time, without touching the filter."""
@@ -145,9 +192,10 @@ class ErrorStateEkf:
         major = float(np.linalg.eigvalsh(P[:2, :2])[-1])
         return math.sqrt(max(major, 0.0)), math.sqrt(max(float(P[ATT.start + 2, ATT.start + 2]), 0.0))
 
-    def update_wheels(self, speeds: FloatArray) -> bool:
+    def update_wheels(self, speeds: FloatArray, sample_offsets_s: FloatArray | None = None) -> bool:
         """The wheels' translation (rim speeds less their common mode), zero vertical body speed and the
-        floor's height; False if gated.
+        floor's height; False if gated. Each rim is compared with the body's velocity when it was
+        sampled (`sample_offsets_s` before the state time; the IMU's change since then is known).
 
         The common mode of the rims is the wheels' opinion of the turn rate, and it is the wrong one
         whenever the true radii differ: commanded speeds without rotation then turn the robot, which
@@ -160,7 +208,11 @@ class ErrorStateEkf:
         c = self.config
         v_body = self.R.T @ self.v
         omega_z = float(self.gyro[2] - self.gyro_bias[2])
-        rim_true = self._drive @ np.array([v_body[0], v_body[1], omega_z])
+        if sample_offsets_s is None or not np.any(sample_offsets_s):
+            rim_true = self._drive @ np.array([v_body[0], v_body[1], omega_z])
+        else:  # read one after another: each wheel against the velocity at its own instant
+            then = (self.v - self.velocity_changes.since(self.t + np.asarray(sample_offsets_s))) @ self.R
+            rim_true = np.einsum("ij,ij->i", self._drive, np.column_stack([then[:, :2], np.full(3, omega_z)]))
         gain = 1.0 - self.wheel_scale
         directions = np.column_stack([self._drive[:, :2], np.zeros(3)])
         rims = np.zeros((3, DIM))

@@ -10,14 +10,16 @@ the fact through `pose_at`, so this costs the survey nothing. Pure: time comes f
 The IMU is the filter's backbone and is never let fall behind the window: when its samples lag
 (a stalled event loop delivers the camera's backlog after fresher wheel readings), nothing later
 than the newest IMU sample is released until the IMU catches up — for at most `max_imu_wait_s`, so
-that a dead IMU does not freeze the poses.
+that a dead IMU does not freeze the poses. Wheel readings are held for the same way, for at most
+`max_wheel_wait_s`: a reading is stamped when its requests left and submitted once six replies are
+in, so on a busy loop it arrives after IMU samples more than the window newer (11 % of readings
+were dropped as late on a quiet machine, more under load).
 """
 
 from __future__ import annotations
 
 import heapq
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +29,7 @@ from gprbot.config import FusionConfig, MotorsConfig
 from gprbot.errors import GprbotError
 from gprbot.fusion.ekf import ErrorStateEkf
 from gprbot.fusion.interpolate import interpolate_poses
+from gprbot.fusion.pose_history import PoseHistory
 from gprbot.fusion.so3 import matrix_to_quat, yaw_of
 from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
 from gprbot.motion.kinematics import KiwiKinematics
@@ -48,6 +51,8 @@ class FusionStats:
     vo_lost: int = 0
     late_dropped: int = 0
     vo_late_dropped: int = 0  # of late_dropped, VO measurements (VO slower than the reorder window)
+    imu_late_dropped: int = 0  # of late_dropped, IMU samples
+    wheel_late_dropped: int = 0  # of late_dropped, wheel readings
 
 
 class PoseFuser:
@@ -63,29 +68,42 @@ class PoseFuser:
         self._next_seq = 0  # ties in time and priority keep arrival order
         self._newest = -math.inf
         self._newest_imu = -math.inf
+        self._newest_wheel = -math.inf
         self._released = -math.inf
         self._init_gyro: list[NDArray[np.float64]] = []
         self._init_accel: list[NDArray[np.float64]] = []
         self._init_start = math.nan
         self._next_tick = math.nan
-        self.history: deque[Pose] = deque(maxlen=max(2, int(self.config.history_s * self.config.output_rate_hz)))
+        self.history = PoseHistory(int(self.config.history_s * self.config.output_rate_hz))
 
     def push(self, message: SensorMessage) -> list[Pose]:
         """Queue one message; the output poses that became final."""
         key = message.t - self.config.wheel_speed_delay_s if isinstance(message, WheelSpeeds) else message.t
+        if isinstance(message, WheelSpeeds):  # a late one too: the wheels lag, so wait for the next
+            self._newest_wheel = max(self._newest_wheel, key)
         if key < self._released:
             self.stats.late_dropped += 1
             self.stats.vo_late_dropped += isinstance(message, VoMeasurement)
+            self.stats.imu_late_dropped += isinstance(message, ImuSample)
+            self.stats.wheel_late_dropped += isinstance(message, WheelSpeeds)
             return []
         heapq.heappush(self._heap, (key, _PRIORITY[type(message)], self._next_seq, message))
         self._next_seq += 1
         self._newest = max(self._newest, key)
         if isinstance(message, ImuSample):
             self._newest_imu = max(self._newest_imu, key)
-        horizon = self._newest - self.config.reorder_window_s
-        if self._newest - self._newest_imu <= self.config.max_imu_wait_s:
+        return self._release(self._horizon())
+
+    def _horizon(self) -> float:
+        """How far the buffer may be released: the window behind the newest message, held back to the
+        newest IMU sample and wheel reading while they lag (each for at most its wait)."""
+        c = self.config
+        horizon = self._newest - c.reorder_window_s
+        if self._newest - self._newest_imu <= c.max_imu_wait_s:
             horizon = min(horizon, self._newest_imu)
-        return self._release(horizon)
+        if self._newest - self._newest_wheel <= c.max_wheel_wait_s:
+            horizon = min(horizon, self._newest_wheel)
+        return horizon
 
     def flush(self) -> list[Pose]:
         """Process everything still queued (end of a run)."""
@@ -94,13 +112,14 @@ class PoseFuser:
     def pose_at(self, t: NDArray[np.float64] | float) -> list[Pose]:
         """Interpolated poses at times within the kept output history."""
         times = np.atleast_1d(np.asarray(t, dtype=np.float64))
-        poses = list(self.history)
-        if len(poses) < 2:
+        if len(self.history) < 2:
             raise GprbotError("no pose history yet: the filter needs IMU data (and a moment at rest) first")
-        stamps = np.array([p.t for p in poses])
-        lo = min(max(int(np.searchsorted(stamps, times.min(), side="right")) - 1, 0), len(poses) - 2)
-        hi = max(int(np.searchsorted(stamps, times.max(), side="left")) + 1, lo + 2)
-        return interpolate_poses(poses[lo:hi], times)
+        poses = self.history.around(float(times.min()), float(times.max()))
+        if len(poses) < 2:  # all of them before the first pose or after the last
+            first, last = self.history.span()
+            raise GprbotError(f"cannot tag data at t=[{times.min():.3f}, {times.max():.3f}] s: poses cover "
+                              f"[{first:.3f}, {last:.3f}] s only")
+        return interpolate_poses(poses, times)
 
     def _release(self, horizon: float) -> list[Pose]:
         out: list[Pose] = []
@@ -122,7 +141,7 @@ class PoseFuser:
             return out
         ekf.propagate_to(t)
         if isinstance(message, WheelSpeeds):
-            accepted = ekf.update_wheels(message.speeds)
+            accepted = ekf.update_wheels(message.speeds, message.sample_offsets_s)
             self.stats.wheel_updates += accepted
             self.stats.wheel_rejected += not accepted
         else:

@@ -27,7 +27,9 @@ from gprbot.messages import FusionSnapshot, decode, encode
 _EKF_ARRAYS = ("p", "v", "R", "gyro_bias", "accel_bias", "wheel_scale", "clone_p", "clone_R", "gyro", "accel",
                "_sum_gyro", "_sum_accel")
 _EKF_SCALARS = ("t", "clone_t", "floor_z", "_held_since")
-_FUSER_SCALARS = ("_newest", "_newest_imu", "_released", "_init_start", "_next_tick")
+_FUSER_SCALARS = ("_newest", "_newest_imu", "_newest_wheel", "_released", "_init_start", "_next_tick")
+# what a snapshot written before a field existed restores it to (its behaviour then)
+_SCALAR_DEFAULTS = {"fuser._newest_wheel": -float("inf")}
 
 
 def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = ()) -> FusionSnapshot:
@@ -37,6 +39,7 @@ def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = 
     arrays["kf_x"], arrays["kf_P"] = np.asarray(ekf.kf.x, dtype=np.float64), np.asarray(ekf.kf.P, dtype=np.float64)
     arrays["init_gyro"] = np.array(fuser._init_gyro, dtype=np.float64).reshape(-1, 3)
     arrays["init_accel"] = np.array(fuser._init_accel, dtype=np.float64).reshape(-1, 3)
+    arrays.update(ekf.velocity_changes.arrays())
     buffer = io.BytesIO()
     np.savez(buffer, allow_pickle=False, **arrays)
     scalars = {f"ekf.{name}": float(getattr(ekf, name)) for name in _EKF_SCALARS}
@@ -60,10 +63,12 @@ def restore(snapshot: FusionSnapshot, config: FusionConfig, motors: MotorsConfig
         ekf.kf.x, ekf.kf.P = arrays["kf_x"], arrays["kf_P"]
         fuser._init_gyro = list(arrays["init_gyro"])
         fuser._init_accel = list(arrays["init_accel"])
+        ekf.velocity_changes.load(arrays)
+        scalars = {**_SCALAR_DEFAULTS, **snapshot.scalars}
         for name in _EKF_SCALARS:
-            setattr(ekf, name, snapshot.scalars[f"ekf.{name}"])
+            setattr(ekf, name, scalars[f"ekf.{name}"])
         for name in _FUSER_SCALARS:
-            setattr(fuser, name, snapshot.scalars[f"fuser.{name}"])
+            setattr(fuser, name, scalars[f"fuser.{name}"])
         fuser.stats = FusionStats(**{k[6:]: v for k, v in snapshot.counters.items() if k.startswith("stats.")})
         ekf.rejected_in_a_row = {k[9:]: v for k, v in snapshot.counters.items() if k.startswith("rejected.")}
         fuser._heap = [(float(key), int(priority), int(seq), decode(raw)) for key, priority, seq, raw in snapshot.heap]

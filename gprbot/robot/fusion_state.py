@@ -61,11 +61,11 @@ class FusionState:
 
     def newest_pose(self) -> Pose | None:
         """The most recent output pose."""
-        return self.fuser.history[-1] if self.fuser.history else None
+        return self.fuser.history.newest()
 
     def poses_between(self, t0: float, t1: float, margin_s: float = 0.05) -> list[Pose]:
         """Output poses from just before t0 to just after t1."""
-        return [p for p in self.fuser.history if t0 - margin_s <= p.t <= t1 + margin_s]
+        return self.fuser.history.between(t0 - margin_s, t1 + margin_s)
 
     async def run(self, beat: Callable[[], None]) -> None:
         """The fusion task: push submitted messages into the filter, in submission order, as they come."""

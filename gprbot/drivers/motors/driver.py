@@ -153,12 +153,12 @@ class MotorDriver:
                 raise result
 
     async def read_encoders(self) -> WheelEncoders:
-        """Read every wheel's speed, back to back, then every count; t is when the speed requests left.
+        """Read every wheel's speed, back to back, then every count; t is when the last speed request left.
 
         Not when the replies were read: on a busy loop that is later by however long the loop was
         elsewhere, and the filter would place the wheels' motion late (the controller samples what it
-        reports when the request reaches it, within a millisecond of its writing). The speeds go first
-        and together because the filter takes them as one instant; how far apart they left is kept."""
+        reports when the request reaches it, within a millisecond of its writing). Each speed keeps
+        when its own request left (offsets from t), so the filter compares it with its velocity then."""
         n = len(self.cfg.wheel_map)
         counts = np.zeros(n, dtype=np.int64)
         speeds = np.zeros(n, dtype=np.float64)
@@ -170,9 +170,10 @@ class MotorDriver:
         for i, (address, channel) in enumerate(self.cfg.wheel_map):
             count = await self._read(rc.read_encoder(address, channel), replies.EncoderCount)
             counts[i] = self._unwrappers[i].update(count.count)
-        t = float(np.mean(stamps))
+        t = max(stamps)
         self.health_tracker.message(t)
-        return WheelEncoders(t=t, counts=counts, speeds=speeds, speed_spread_s=max(stamps) - min(stamps))
+        return WheelEncoders(t=t, counts=counts, speeds=speeds, speed_spread_s=t - min(stamps),
+                             speed_offsets_s=np.array(stamps) - t)
 
     async def reset_encoders(self) -> None:
         """Zero the encoder counters of every controller (and the unwrapped counts)."""
