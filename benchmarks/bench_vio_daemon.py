@@ -180,7 +180,7 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
         "VO only": errors(vo_only(vo_msgs, p0, yaw0, inputs[0].t), t_ts, tr),
         "wheels only": errors(wheel_only(wheel_msgs, cfg.motors, p0, yaw0), t_ts, tr),
     }
-    print(f"machine: {machine_description()} (a loaded, shared 2-core VM when run for issue 14)")
+    print(f"machine: {machine_description()}")
     print(f"survey: {lines} lines x {length_m} m at {speed_m_s} m/s, state {run.state}, driven in {wall:.1f} s; "
           f"texture-poor patch x 0.95-1.65 m, y -0.5-0.45 m; wheel slip on")
     print(f"{'estimator':42s} {'ATE RMS cm':>10s} {'yaw drift deg':>14s}")
