@@ -314,3 +314,24 @@ def test_device_clock_keeps_the_least_latency_offset_and_detects_jumps() -> None
     # Set forward by a minute: the smaller offset is taken at once, and reported.
     t_fwd = clock.to_host(device[-1] + 60.02 - 3600.0, host[-1] + 0.02)
     assert clock.jumps == 2 and abs(t_fwd - (host[-1] + 0.02)) < 0.01
+
+
+def test_the_emulator_stamps_a_trace_when_its_source_is_asked_not_after() -> None:
+    """A source that takes 50 ms (the simulator on a loaded machine) must not make its traces 50 ms late."""
+    from gprbot.drivers.gpr.sdk_api import AcquisitionSetup
+
+    now = [100.0]
+    asked: list[float] = []
+
+    def slow_source(n: int) -> np.ndarray:
+        asked.append(now[0])  # the simulator takes the antenna's position now
+        now[0] += 0.05
+        return source(n)
+
+    emu = GprSdkEmulator(slow_source, rate_hz=RATE_HZ, device_clock=lambda: now[0])
+    setup = AcquisitionSetup(PPT, 100.0, 4, -1000.0, 0.004)
+    frames = b"".join(emu._frame(n, setup) for n in (1, 2, 3))
+    parsed = [e for e in TraceStreamParser(PPT, 4).feed(frames) if isinstance(e, TraceFrame)]
+    assert len(parsed) == 2  # the last one waits for the next header
+    for frame, when in zip(parsed, asked, strict=False):
+        assert frame.tv_sec + frame.tv_nsec * 1e-9 == pytest.approx(when, abs=1e-6)

@@ -220,10 +220,13 @@ class GprSdkEmulator(EmulatedSdkApi):
             await self._send(self._frame(self.last_number, setup))
 
     def _frame(self, number: int, setup: AcquisitionSetup) -> bytes:
+        # Stamped when it is recorded, as the NIC does, not once the source has computed it: the simulator's
+        # source takes the antenna's position at this call and needs milliseconds (tens on a loaded
+        # machine), so a later stamp tagged every trace with a pose further along its line.
+        stamp = self.device_clock()
         samples = np.asarray(self.trace_source(number), dtype=np.float32).ravel()[: setup.points_per_trace]
         if samples.size < setup.points_per_trace:  # the source is shorter than the setup: pad with zeros
             samples = np.pad(samples, (0, setup.points_per_trace - samples.size))
-        stamp = self.device_clock()
         seconds = int(stamp // 1)
         nanos = min(round((stamp - seconds) * 1e9), 999_999_999)
         return encode_frame(number, samples, seconds, nanos, setup.point_stacks)
