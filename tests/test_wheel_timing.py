@@ -5,7 +5,7 @@ On a busy event loop the three speed requests of one reading leave up to hundred
 as one instant while the robot speeds up or stops, their mixture reads as a sideways motion the base
 never made (in the daemon a phantom 4 cm/s put the fused pose 16 cm off in 3 s). And a reading is
 submitted only after its six replies, so it reaches the filter after IMU samples more than the
-reorder window newer, which dropped 11 % of readings as late even on a quiet machine.
+reorder window newer: 1,416 late drops beside 12,214 wheel updates in a 10-line survey on a quiet machine.
 """
 
 from __future__ import annotations

@@ -12,8 +12,8 @@ The IMU is the filter's backbone and is never let fall behind the window: when i
 than the newest IMU sample is released until the IMU catches up — for at most `max_imu_wait_s`, so
 that a dead IMU does not freeze the poses. Wheel readings are held for the same way, for at most
 `max_wheel_wait_s`: a reading is stamped when its requests left and submitted once six replies are
-in, so on a busy loop it arrives after IMU samples more than the window newer (11 % of readings
-were dropped as late on a quiet machine, more under load).
+in, so on a busy loop it arrives after IMU samples more than the window newer (in a 10-line daemon
+survey on a quiet machine, 1,416 late drops beside 12,214 wheel updates; 1 with the wait).
 """
 
 from __future__ import annotations
