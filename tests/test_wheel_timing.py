@@ -110,3 +110,20 @@ def test_a_reading_waited_for_changes_nothing_when_it_is_on_time() -> None:
         fuser = PoseFuser(config, MotorsConfig())
         runs.append([p.position for m in messages for p in fuser.push(m)])
     assert np.array(runs[0]) == pytest.approx(np.array(runs[1]), abs=0.0)
+
+
+def test_a_gyro_backlog_ahead_of_the_accelerometer_drops_no_imu_sample() -> None:
+    """The D435i's two IMU streams reach the filter apart: after a stall the gyro's backlog can come
+    first, and the accelerometer's older samples then landed behind the window (1,209 dropped in one
+    daemon survey)."""
+    messages = sensors(6.0, None)
+    config = FusionConfig(init_duration_s=REST_S - 0.2)
+    # 0.3 s of accelerometer samples held back from t = 4 s, delivered after the gyro's
+    held = [m for m in messages if isinstance(m, ImuSample) and m.accel is not None and 4.0 <= m.t < 4.3]
+    rest = [m for m in messages if not any(m is h for h in held)]
+    at = next(i for i, m in enumerate(rest) if m.t >= 4.3)
+    fuser = PoseFuser(config, MotorsConfig())
+    for message in rest[:at] + held + rest[at:]:
+        fuser.push(message)
+    fuser.flush()
+    assert fuser.stats.imu_late_dropped == 0 and fuser.stats.late_dropped == 0

@@ -9,7 +9,9 @@ the fact through `pose_at`, so this costs the survey nothing. Pure: time comes f
 
 The IMU is the filter's backbone and is never let fall behind the window: when its samples lag
 (a stalled event loop delivers the camera's backlog after fresher wheel readings), nothing later
-than the newest IMU sample is released until the IMU catches up — for at most `max_imu_wait_s`, so
+than the newest IMU sample of the two streams (gyro and accelerometer, delivered apart: a gyro
+backlog ahead of the accelerometer's dropped 1,209 accelerometer samples in one daemon survey) is
+released until the IMU catches up — for at most `max_imu_wait_s`, so
 that a dead IMU does not freeze the poses. Wheel readings are held for the same way, for at most
 `max_wheel_wait_s`: a reading is stamped when its requests left and submitted once six replies are
 in, so on a busy loop it arrives after IMU samples more than the window newer (in a 10-line daemon
@@ -67,7 +69,8 @@ class PoseFuser:
         self._heap: list[tuple[float, int, int, SensorMessage]] = []
         self._next_seq = 0  # ties in time and priority keep arrival order
         self._newest = -math.inf
-        self._newest_imu = -math.inf
+        self._newest_gyro = -math.inf  # the D435i's gyro and accelerometer are two streams, delivered apart
+        self._newest_accel = -math.inf
         self._newest_wheel = -math.inf
         self._released = -math.inf
         self._init_gyro: list[NDArray[np.float64]] = []
@@ -79,8 +82,14 @@ class PoseFuser:
     def push(self, message: SensorMessage) -> list[Pose]:
         """Queue one message; the output poses that became final."""
         key = message.t - self.config.wheel_speed_delay_s if isinstance(message, WheelSpeeds) else message.t
-        if isinstance(message, WheelSpeeds):  # a late one too: the wheels lag, so wait for the next
+        # a late one too: its stream lags, so wait for the next
+        if isinstance(message, WheelSpeeds):
             self._newest_wheel = max(self._newest_wheel, key)
+        elif isinstance(message, ImuSample):
+            if message.gyro is not None:
+                self._newest_gyro = max(self._newest_gyro, key)
+            if message.accel is not None:
+                self._newest_accel = max(self._newest_accel, key)
         if key < self._released:
             self.stats.late_dropped += 1
             self.stats.vo_late_dropped += isinstance(message, VoMeasurement)
@@ -90,17 +99,22 @@ class PoseFuser:
         heapq.heappush(self._heap, (key, _PRIORITY[type(message)], self._next_seq, message))
         self._next_seq += 1
         self._newest = max(self._newest, key)
-        if isinstance(message, ImuSample):
-            self._newest_imu = max(self._newest_imu, key)
         return self._release(self._horizon())
+
+    @property
+    def _newest_imu(self) -> float:
+        """The newest time both IMU streams have reached (the one stream, if only one was ever seen)."""
+        seen = [t for t in (self._newest_gyro, self._newest_accel) if t > -math.inf]
+        return min(seen) if seen else -math.inf
 
     def _horizon(self) -> float:
         """How far the buffer may be released: the window behind the newest message, held back to the
         newest IMU sample and wheel reading while they lag (each for at most its wait)."""
         c = self.config
         horizon = self._newest - c.reorder_window_s
-        if self._newest - self._newest_imu <= c.max_imu_wait_s:
-            horizon = min(horizon, self._newest_imu)
+        newest_imu = self._newest_imu
+        if self._newest - newest_imu <= c.max_imu_wait_s:
+            horizon = min(horizon, newest_imu)
         if self._newest - self._newest_wheel <= c.max_wheel_wait_s:
             horizon = min(horizon, self._newest_wheel)
         return horizon

@@ -27,9 +27,11 @@ from gprbot.messages import FusionSnapshot, decode, encode
 _EKF_ARRAYS = ("p", "v", "R", "gyro_bias", "accel_bias", "wheel_scale", "clone_p", "clone_R", "gyro", "accel",
                "_sum_gyro", "_sum_accel")
 _EKF_SCALARS = ("t", "clone_t", "floor_z", "_held_since")
-_FUSER_SCALARS = ("_newest", "_newest_imu", "_newest_wheel", "_released", "_init_start", "_next_tick")
+_FUSER_SCALARS = ("_newest", "_newest_gyro", "_newest_accel", "_newest_wheel", "_released", "_init_start",
+                  "_next_tick")
 # what a snapshot written before a field existed restores it to (its behaviour then)
-_SCALAR_DEFAULTS = {"fuser._newest_wheel": -float("inf")}
+_SCALAR_DEFAULTS = {"fuser._newest_wheel": -float("inf"), "fuser._newest_gyro": -float("inf"),
+                    "fuser._newest_accel": -float("inf")}
 
 
 def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = ()) -> FusionSnapshot:
@@ -65,6 +67,8 @@ def restore(snapshot: FusionSnapshot, config: FusionConfig, motors: MotorsConfig
         fuser._init_accel = list(arrays["init_accel"])
         ekf.velocity_changes.load(arrays)
         scalars = {**_SCALAR_DEFAULTS, **snapshot.scalars}
+        if "fuser._newest_imu" in scalars and "fuser._newest_gyro" not in snapshot.scalars:  # before the split
+            scalars["fuser._newest_gyro"] = scalars["fuser._newest_accel"] = scalars["fuser._newest_imu"]
         for name in _EKF_SCALARS:
             setattr(ekf, name, scalars[f"ekf.{name}"])
         for name in _FUSER_SCALARS:
