@@ -215,6 +215,9 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
           f"the filter (gyro {gyro_n}, accel {accel_n}; those in flight at either end differ); driver "
           f"frame-number drops {imu_drops} (whole run); filter late drops (whole run) IMU {stats.imu_late_dropped}, "
           f"wheels {stats.wheel_late_dropped}, VO {stats.vo_late_dropped}")
+    if stats.imu_late_dropped:  # the filter is deterministic: re-run it to show where (issue 14's open end)
+        print("IMU samples dropped as late, the first of them:")
+        print("\n".join(late_imu_report(inputs, cfg, (x0, y0), yaw0)))
     cpu = {k: cpu1.get(k, 0.0) - cpu0.get(k, 0.0) for k in cpu1}
     by_id = {int(k.rsplit(":", 1)[1]): v for k, v in cpu.items()}
     loop_cpu = by_id.get(named["loop"], 0.0)
@@ -248,6 +251,23 @@ def offline(inputs: list[Any], cfg: Any, xy: tuple[float, float], yaw: float, wi
         if with_vo or not isinstance(message, VoMeasurement):
             poses.extend(fuser.push(message))
     return poses
+
+
+def late_imu_report(inputs: list[Any], cfg: Any, xy: tuple[float, float], yaw: float, shown: int = 5) -> list[str]:
+    """Where the filter dropped IMU samples as late: the sample, the released horizon and the streams' newest."""
+    fuser = PoseFuser(cfg.fusion, cfg.motors, initial_position=(xy[0], xy[1], 0.0), initial_yaw_rad=yaw)
+    lines: list[str] = []
+    for i, message in enumerate(inputs):
+        before, released = fuser.stats.imu_late_dropped, fuser._released
+        newest = (fuser._newest, fuser._newest_gyro, fuser._newest_accel, fuser._newest_wheel)
+        fuser.push(message)
+        if fuser.stats.imu_late_dropped > before and len(lines) < shown:
+            kind = "gyro" if message.gyro is not None else "accel"
+            previous = ", ".join(f"{type(m).__name__} {m.t:.4f}" for m in inputs[max(0, i - 3):i])
+            lines.append(f"  input {i}: {kind} t {message.t:.4f} behind the released {released:.4f} by "
+                         f"{(released - message.t) * 1e3:.1f} ms; newest any/gyro/accel/wheel "
+                         + "/".join(f"{t:.4f}" for t in newest) + f"; before it: {previous}")
+    return lines
 
 
 def main() -> None:
