@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import math
 import zipfile
 from collections.abc import Iterable
 from typing import Any
@@ -29,9 +30,6 @@ _EKF_ARRAYS = ("p", "v", "R", "gyro_bias", "accel_bias", "wheel_scale", "clone_p
 _EKF_SCALARS = ("t", "clone_t", "floor_z", "_held_since")
 _FUSER_SCALARS = ("_newest", "_newest_gyro", "_newest_accel", "_newest_wheel", "_released", "_init_start",
                   "_next_tick")
-# what a snapshot written before a field existed restores it to (its behaviour then)
-_SCALAR_DEFAULTS = {"fuser._newest_wheel": -float("inf"), "fuser._newest_gyro": -float("inf"),
-                    "fuser._newest_accel": -float("inf")}
 
 
 def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = ()) -> FusionSnapshot:
@@ -66,9 +64,11 @@ def restore(snapshot: FusionSnapshot, config: FusionConfig, motors: MotorsConfig
         fuser._init_gyro = list(arrays["init_gyro"])
         fuser._init_accel = list(arrays["init_accel"])
         ekf.velocity_changes.load(arrays)
-        scalars = {**_SCALAR_DEFAULTS, **snapshot.scalars}
-        if "fuser._newest_imu" in scalars and "fuser._newest_gyro" not in snapshot.scalars:  # before the split
-            scalars["fuser._newest_gyro"] = scalars["fuser._newest_accel"] = scalars["fuser._newest_imu"]
+        # What a snapshot written before a field existed restores it to: its behaviour then (no wheel
+        # wait; one newest-IMU time for both streams).
+        imu = snapshot.scalars.get("fuser._newest_imu", -math.inf)
+        scalars = {"fuser._newest_wheel": -math.inf, "fuser._newest_gyro": imu, "fuser._newest_accel": imu,
+                   **snapshot.scalars}
         for name in _EKF_SCALARS:
             setattr(ekf, name, scalars[f"ekf.{name}"])
         for name in _FUSER_SCALARS:
