@@ -155,3 +155,35 @@ def test_velocity_voters_leave_out_echoes() -> None:
     assert _echo_of(0.33, 7.12, 0.375, 3.77)  # the surface multiple, pulled 4.5 cm aside
     assert not _echo_of(0.60, 7.0, 0.40, 3.5)  # a neighbour at twice the time, 20 cm away
     assert not _echo_of(0.40, 3.0, 0.40, 3.5)  # earlier than the stronger one: not its echo
+
+
+def test_smooth_residuals_inflate_the_covariance_white_ones_do_not() -> None:
+    from gprbot.gpr.chain.fit import correlation_inflation
+
+    rng = np.random.default_rng(3)
+    assert correlation_inflation(rng.normal(0.0, 1.0, 400)) < 1.3
+    smooth = np.sin(np.linspace(0.0, 3.0, 40))  # a model error: one slow curve along the flank
+    assert correlation_inflation(smooth) > 10.0
+    assert correlation_inflation(np.zeros(10)) == 1.0
+
+
+def test_a_radius_the_curve_does_not_measure_puts_the_centre_halfway() -> None:
+    from gprbot.gpr.chain.classify import reported_radius
+
+    measured = CylinderFit(0.5, 0.2, 0.04, V, 0.001, 0.001, 0.004, 0.0, 0.01, 30)
+    assert reported_radius(measured) == (0.04, 0.004, True)
+    loose = replace(measured, sigma_radius_m=0.03)
+    radius, sigma, supported = reported_radius(loose)
+    assert not supported and radius == pytest.approx(0.02) and sigma == pytest.approx(0.02)
+
+
+def test_a_line_shorter_than_its_hyperbola_keeps_the_apex() -> None:
+    # 12 cm of line over a bar 9 cm down (gprMax's 2D example): every trace sees nearly the same apex,
+    # so the median trace holds it, and subtracting that all the way down leaves nothing to detect.
+    v = 0.1224
+    b = synthetic_bscan([SyntheticTarget(0.06, 0.09, 0.01, 1.0)], v_m_per_ns=v, centre_frequency_mhz=1500.0,
+                        n_traces=40, spacing_m=0.003, samples=400, dt_ns=0.01, t0_ns=0.5,
+                        antenna_height_m=0.0, tx_rx_offset_m=0.04, noise=0.005, direct_wave=3.0)
+    gpr = replace(GprConfig(), centre_frequency_mhz=1500.0, antenna_height_m=0.0, tx_rx_offset_m=0.04)
+    found = interpret(replace(b, t0_ns=math.nan), gpr, v).detections
+    assert any(abs(d.x_m - 0.06) < 0.01 and abs(d.fit.top_m - 0.08) < 0.01 for d in found), found

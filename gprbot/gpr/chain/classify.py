@@ -183,6 +183,20 @@ def _confidence(prep: PreparedBScan, r: Reflector, fit: CylinderFit) -> float:
     return float(snr * (0.5 + 0.5 * flanks) * (0.5 + 0.5 * misfit) * min(1.0, r.coherence / 0.5))
 
 
+def reported_radius(fit: CylinderFit) -> tuple[float, float, bool]:
+    """(radius, 1-sigma, supported): the fit's where its curve measures it, else the middle of [0, fitted] ± half.
+
+    The curvature that tells a pipe from a bar is a few tens of picoseconds on the flanks, the size of
+    the difference between any ray model and the data; where the fit's error bar is wider than the
+    radius, the truth lies anywhere from a thin bar up to about the fitted value (FDTD dev half: such
+    fits ran 0.3-2.5x the true radius, median 1.35x), and the centre is put in the middle of that range.
+    """
+    if fit.sigma_radius_m <= max(RADIUS_SUPPORT * fit.radius_m, 0.003):
+        return fit.radius_m, fit.sigma_radius_m, True
+    half = 0.5 * fit.radius_m
+    return half, half, False
+
+
 def classify(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> tuple[ClassifiedDetection, ...]:
     """Accepted hyperbolas (with their fits at the line's velocity), echoes dropped, rebar rows marked."""
     kept = [(r, r.fit) for r in reflectors if r.fit is not None and is_hyperbola(prep, r, v)]
@@ -195,9 +209,9 @@ def classify(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> 
     bars = _rebar_rows([f for _, f in primary])
     out = []
     for k, (r, f) in enumerate(primary):
-        supported = f.sigma_radius_m <= max(RADIUS_SUPPORT * f.radius_m, 0.003)
+        radius, sigma, supported = reported_radius(f)
         contrast: Literal["slower", "faster"] = "faster" if r.candidate.polarity == prep.direct_polarity else "slower"
-        out.append(ClassifiedDetection(f.x0_m, f.depth_m, f.radius_m, f.sigma_radius_m, supported,
+        out.append(ClassifiedDetection(f.x0_m, f.top_m + radius, radius, sigma, supported,
                                        "rebar" if k in bars else "pipe", contrast, _confidence(prep, r, f), f, r))
     return tuple(out)
 

@@ -31,6 +31,7 @@ PICK_STD_PERIODS = 0.03  # floor of a pick's timing error, in periods
 ROBUST_SCALE = 2.0  # soft-L1 scale, in pick standard deviations
 ITERATIONS = 20
 START_RADII_M = np.array([0.01])
+MAX_CORRELATION = 0.95
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,21 @@ def _padded(picks: Sequence[Picks]) -> tuple[FloatArray, FloatArray, NDArray[np.
         x[i, :k], t[i, :k], mask[i, :k] = p.x_m, p.t_ns, True
         x[i, k:] = p.x_m[-1] if k else 0.0
     return x, t, mask
+
+
+def correlation_inflation(residuals: FloatArray) -> float:
+    """Variance factor for residuals that run smooth along the picks: (1 + ρ) / (1 − ρ), ρ their lag-1 correlation.
+
+    Where the model and the data differ (the wavelet changes along a flank, a neighbour's tail), the
+    misfit is a smooth curve, not white noise; n such picks carry the weight of n (1 − ρ)/(1 + ρ)
+    independent ones, and the covariance of white errors would claim a radius the curve does not show.
+    """
+    r = residuals - residuals.mean()
+    denom = float(r @ r)
+    if len(r) < 4 or denom <= 0.0:
+        return 1.0
+    rho = min(MAX_CORRELATION, max(0.0, float(r[1:] @ r[:-1]) / denom))
+    return (1.0 + rho) / (1.0 - rho)
 
 
 def fit_cylinders(
@@ -145,7 +161,7 @@ def fit_cylinders(
         m = mask[b]
         jb, rb = J[b][m], r[b][m]
         dof = max(1, int(m.sum()) - n_par)
-        scale = max(1.0, float(rb @ rb) / dof)
+        scale = max(1.0, float(rb @ rb) / dof) * correlation_inflation(rb)
         cov = np.linalg.pinv(jb.T @ jb) * scale
         sig = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.all(np.isfinite(cov)) else np.full(n_par, np.inf)
         vel = float(p[b, 3]) if free_velocity else float(v0[b])

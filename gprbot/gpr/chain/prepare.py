@@ -27,6 +27,9 @@ FloatArray = NDArray[np.float64]
 _DIRECT_SEARCH_FRACTION = 0.6  # the direct wave lies in the first part of any sensible window
 _MIN_FREQUENCY_RATIO, _MAX_FREQUENCY_RATIO = 0.25, 3.0  # band searched around the nominal frequency
 SAMPLES_PER_PERIOD = 16  # finer time sampling adds cost and no information: decimate down to it
+SHORT_LINE_WAVELENGTHS = 3.0  # shorter lines (at 0.1 m/ns) keep their median trace below the direct wave
+NOMINAL_V_M_PER_NS = 0.1
+DIRECT_WAVE_PERIODS = 1.0  # the direct wave's main lobes last about this long after its envelope peak
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,19 @@ def noise_level(data: FloatArray, blocks: int = 8) -> float:
                      for a, b in itertools.pairwise(edges)))
 
 
+def without_direct_wave(data: FloatArray, direct_ns: float, dt_ns: float, period_ns: float) -> FloatArray:
+    """The traces less their median over the direct wave only, tapered to nothing a period after it.
+
+    On a line not much longer than one hyperbola is wide, most traces see the same apex, so the median
+    trace holds the target and subtracting it all the way down erases it; only the direct wave is
+    shared for sure.
+    """
+    t = np.arange(data.shape[1]) * dt_ns
+    ramp = np.clip((t - direct_ns - DIRECT_WAVE_PERIODS * period_ns) / period_ns, 0.0, 1.0)
+    taper = 0.5 * (1.0 + np.cos(np.pi * ramp))
+    return np.asarray(data - np.median(data, axis=0)[None, :] * taper[None, :], dtype=np.float64)
+
+
 def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
     """Uniform grid, dewow, time zero from the direct wave (unless known), median background removal."""
     check_bscan(bscan)
@@ -140,8 +156,12 @@ def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
         path = 0.5 * (gpr.tx_rx_offset_m + math.hypot(gpr.tx_rx_offset_m, 2.0 * gpr.antenna_height_m))
         t0, method = direct_ns - path / C_M_PER_NS, "direct-wave envelope peak"
     length = float(x[-1] - x[0])
-    window = BACKGROUND_WINDOW_M if length > BACKGROUND_WINDOW_M else None
-    cleaned = np.asarray(remove_background(dewowed, x, window_m=window, spacing_m=float(x[1] - x[0])), np.float64)
+    period_ns = 1000.0 / gpr.centre_frequency_mhz
+    if length < SHORT_LINE_WAVELENGTHS * NOMINAL_V_M_PER_NS * period_ns:
+        cleaned = without_direct_wave(dewowed, direct_ns, raw.dt_ns, period_ns)
+    else:
+        window = BACKGROUND_WINDOW_M if length > BACKGROUND_WINDOW_M else None
+        cleaned = np.asarray(remove_background(dewowed, x, window_m=window, spacing_m=float(x[1] - x[0])), np.float64)
     start = min(cleaned.shape[1] - 1, max(0, round(direct_ns / raw.dt_ns)))
     freq = dominant_frequency(cleaned, raw.dt_ns, start, gpr.centre_frequency_mhz)
     noise = noise_level(cleaned[:, start:]) or float(np.std(cleaned)) or 1e-12

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from gprbot.gpr.chain.candidates import ApexCandidate
-from gprbot.gpr.chain.classify import MIN_FLANK_PICKS, RADIUS_SUPPORT, ClassifiedDetection
+from gprbot.gpr.chain.classify import MIN_FLANK_PICKS, ClassifiedDetection, reported_radius
 from gprbot.gpr.chain.fit import R_MAX_M, CylinderFit
 from gprbot.gpr.chain.geometry import cylinder_time
 from gprbot.gpr.chain.peaks import peak_offset
@@ -170,12 +170,8 @@ def _spot_detection(prep: PreparedBScan, spot: Spot, seeded: Reflector | None, v
         return None
     f = seeded.fit
     # The spot places the top (migration is robust where flanks overlap); the fit measures the radius.
-    fit = CylinderFit(spot.x_m, spot.top_m, f.radius_m, v, f.sigma_x0_m, f.sigma_top_m, f.sigma_radius_m, 0.0,
-                      f.rms_ns, f.n_picks)
-    supported = f.sigma_radius_m <= max(RADIUS_SUPPORT * f.radius_m, 0.003)
-    if not supported:  # the curve does not measure it: the top is what the spot says
-        fit = CylinderFit(spot.x_m, spot.top_m, 0.0, v, f.sigma_x0_m, f.sigma_top_m, f.sigma_radius_m, 0.0,
-                          f.rms_ns, f.n_picks)
+    radius, sigma, supported = reported_radius(f)
+    fit = CylinderFit(spot.x_m, spot.top_m, radius, v, f.sigma_x0_m, f.sigma_top_m, sigma, 0.0, f.rms_ns, f.n_picks)
     contrast: Literal["slower", "faster"] = "faster" if seeded.candidate.polarity == prep.direct_polarity else "slower"
     confidence = float(min(1.0, spot.focus) * min(1.0, seeded.coherence / 0.5)
                        * (1.0 - np.exp(-seeded.candidate.snr / 15.0)))
