@@ -187,3 +187,16 @@ def test_a_line_shorter_than_its_hyperbola_keeps_the_apex() -> None:
     gpr = replace(GprConfig(), centre_frequency_mhz=1500.0, antenna_height_m=0.0, tx_rx_offset_m=0.04)
     found = interpret(replace(b, t0_ns=math.nan), gpr, v).detections
     assert any(abs(d.x_m - 0.06) < 0.01 and abs(d.fit.top_m - 0.08) < 0.01 for d in found), found
+
+
+def test_an_apex_must_be_earliest_on_both_flanks() -> None:
+    from gprbot.gpr.chain.classify import descends_on_both_flanks
+
+    prep = prepare(_line([SyntheticTarget(1.0, 0.2, 0.02, 1.0)]), GPR)
+    fit = CylinderFit(1.0, 0.2, 0.0, V, 0.001, 0.001, 0.002, 0.0, 0.01, 21)
+    x = np.arange(0.9, 1.101, 0.01)
+    hyperbola = cylinder_time(x, 1.0, 0.2, 0.0, V, GPR.antenna_height_m, GPR.tx_rx_offset_m)
+    cand = apex_candidates(prep)[0]
+    assert descends_on_both_flanks(prep, Picks(cand, x, hyperbola, np.ones(len(x)), 10, 10), fit)
+    kink = np.where(x < 1.0, hyperbola[10], hyperbola)  # a layer's kink: level to the left, dipping to the right
+    assert not descends_on_both_flanks(prep, Picks(cand, x, kink, np.ones(len(x)), 10, 10), fit)
