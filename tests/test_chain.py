@@ -200,3 +200,19 @@ def test_an_apex_must_be_earliest_on_both_flanks() -> None:
     assert descends_on_both_flanks(prep, Picks(cand, x, hyperbola, np.ones(len(x)), 10, 10), fit)
     kink = np.where(x < 1.0, hyperbola[10], hyperbola)  # a layer's kink: level to the left, dipping to the right
     assert not descends_on_both_flanks(prep, Picks(cand, x, kink, np.ones(len(x)), 10, 10), fit)
+
+
+def test_a_bright_echo_under_a_pipe_does_not_vote_for_the_velocity() -> None:
+    from types import SimpleNamespace
+
+    from gprbot.gpr.chain.velocity import _primaries
+
+    prep = SimpleNamespace(x_m=np.arange(100) * 0.01)
+
+    def reflector(column: int, t_ns: float, snr: float) -> SimpleNamespace:
+        return SimpleNamespace(candidate=SimpleNamespace(column=column, t_ns=t_ns, snr=snr))
+
+    top, bottom, other = reflector(40, 3.0, 20.0), reflector(41, 9.0, 60.0), reflector(80, 5.0, 30.0)
+    # Strongest first, as the voters are ranked: the water pipe's bottom echo leads, yet it is the echo.
+    kept = _primaries(prep, [bottom, other, top])  # type: ignore[arg-type]
+    assert kept == [other, top]
