@@ -216,3 +216,15 @@ def test_a_bright_echo_under_a_pipe_does_not_vote_for_the_velocity() -> None:
     # Strongest first, as the voters are ranked: the water pipe's bottom echo leads, yet it is the echo.
     kept = _primaries(prep, [bottom, other, top])  # type: ignore[arg-type]
     assert kept == [other, top]
+
+
+def test_refracted_leg_is_fermats_minimum_even_near_grazing() -> None:
+    from gprbot.gpr.chain.geometry import leg_time
+    from gprbot.gpr.traveltime import C_M_PER_NS
+
+    D, d = np.array([0.0, 0.05, 0.3, 0.8, 1.5]), np.array([0.02, 0.1, 0.05, 0.02, 0.3])
+    for h in (0.005, 0.03, 0.06):
+        for v in (0.05, 0.12, 0.28):
+            a = np.linspace(0.0, 1.0, 200001)[:, None] * D[None, :]  # every entry point, 5 µm apart at most
+            brute = (np.sqrt(h * h + a * a) / C_M_PER_NS + np.sqrt(d * d + (D - a) ** 2) / v).min(axis=0)
+            assert np.max(np.abs(leg_time(h, D, d, v) - brute)) < 1e-3  # ns: under a picosecond
