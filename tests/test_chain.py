@@ -228,3 +228,24 @@ def test_refracted_leg_is_fermats_minimum_even_near_grazing() -> None:
             a = np.linspace(0.0, 1.0, 200001)[:, None] * D[None, :]  # every entry point, 5 µm apart at most
             brute = (np.sqrt(h * h + a * a) / C_M_PER_NS + np.sqrt(d * d + (D - a) ** 2) / v).min(axis=0)
             assert np.max(np.abs(leg_time(h, D, d, v) - brute)) < 1e-3  # ns: under a picosecond
+
+
+def test_the_apex_test_of_all_events_at_once_matches_its_definition_event_by_event() -> None:
+    from gprbot.gpr.chain.candidates import _earliest
+
+    def one(events: np.ndarray, col: int, row: int, k: int, half: int, tolerance: float) -> bool:
+        for side in (col - k, col + k):
+            if 0 <= side < events.shape[0]:
+                lo = max(0, row - half)
+                near = np.flatnonzero(events[side, lo:row + half + 1]) + lo
+                if len(near) and near[np.argmin(np.abs(near - row))] < row - tolerance:
+                    return False
+        return True
+
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        events = rng.random((int(rng.integers(3, 40)), int(rng.integers(5, 80)))) < rng.uniform(0.01, 0.3)
+        cols, rows = np.nonzero(events)
+        k, half, tol = int(rng.integers(1, 4)), int(rng.integers(1, 6)), float(rng.uniform(0.0, 3.0))
+        expected = [one(events, int(c), int(r), k, half, tol) for c, r in zip(cols, rows, strict=True)]
+        assert list(_earliest(events, cols, rows, k, half, tol)) == expected

@@ -51,19 +51,28 @@ def _events(prep: PreparedBScan) -> tuple[np.ndarray, np.ndarray]:
     return peaks & (env > threshold), np.array(threshold)
 
 
-def _earliest(events: np.ndarray, col: int, row: int, k: int, half: int, tolerance: float) -> bool:
-    """Whether the event at (col, row) arrives no earlier than its continuation k columns to each side."""
+def _earliest(events: np.ndarray, cols: np.ndarray, rows: np.ndarray, k: int, half: int,
+              tolerance: float) -> np.ndarray:
+    """For every event (cols[i], rows[i]): whether it arrives no earlier than its continuation k columns to each
+    side — the nearest event there within `half` samples (the earlier of two equally near); where the event
+    does not continue (a line end, or it fades) there is no evidence against it."""
     nx, ns = events.shape
-    for side in (col - k, col + k):
-        if not 0 <= side < nx:
-            continue
-        lo, hi = max(0, row - half), min(ns, row + half + 1)
-        near = np.flatnonzero(events[side, lo:hi]) + lo
-        if len(near) == 0:
-            continue  # the event does not continue there (a line end, or it fades): no evidence against
-        if near[np.argmin(np.abs(near - row))] < row - tolerance:
-            return False
-    return True
+    ec, er = np.nonzero(events)
+    keys = ec * ns + er  # sorted: by column, then row
+    ok = np.ones(len(cols), dtype=bool)
+    if not len(keys):
+        return ok
+    for side in (-k, k):
+        col = cols + side
+        query = col * ns + rows
+        at = np.searchsorted(keys, query)
+        above = keys[np.minimum(at, len(keys) - 1)]
+        below = keys[np.maximum(at - 1, 0)]
+        up = (at < len(keys)) & (above // ns == col) & (above - query <= half)
+        down = (at > 0) & (below // ns == col) & (query - below <= half)
+        nearer_is_earlier = down & (~up | (query - below <= above - query))
+        ok &= ~((col >= 0) & (col < nx) & nearer_is_earlier & (query - below > tolerance))
+    return ok
 
 
 def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
@@ -74,8 +83,7 @@ def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
     half = max(1, round(0.5 * prep.period_ns / prep.dt_ns))
     tolerance = APEX_EARLIER_PERIODS * prep.period_ns / prep.dt_ns
     cols, rows = np.nonzero(events)
-    apex = np.array([_earliest(events, int(c), int(r), k, half, tolerance) for c, r in zip(cols, rows, strict=True)],
-                    dtype=bool)
+    apex = _earliest(events, cols, rows, k, half, tolerance)
     cols, rows = cols[apex], rows[apex]
     # One candidate per top: the earliest, then none within k columns and a quarter period of it.
     picked: list[tuple[int, int]] = []

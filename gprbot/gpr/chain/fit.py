@@ -141,7 +141,7 @@ def fit_cylinders(
         diag = np.einsum("bpp->bp", A) + 1e-12
         damped = A + la[:, None, None] * np.einsum("bp,pq->bpq", diag, np.eye(n_par))
         step = -np.linalg.solve(damped, g[..., None])[..., 0]
-        trial = np.clip(pa + step, lo[active], hi[active])
+        trial = np.minimum(np.maximum(pa + step, lo[active]), hi[active])  # np.clip costs more on small arrays
         r_trial, J_trial = residual_and_jacobian(trial, active)
         c_trial = cost(r_trial)
         better = c_trial < c[active]
