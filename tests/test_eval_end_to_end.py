@@ -81,3 +81,22 @@ def test_an_fdtd_scene_becomes_a_survey_of_identical_lines() -> None:
     ymin, ymax = survey.region[2:]
     assert all(p.points[0, 1] < ymin and p.points[-1, 1] > ymax for p in survey.truth.pipes)
     assert survey.dense is not None and np.ptp(survey.dense, axis=0).max() == pytest.approx(1.0, abs=1e-5)
+
+
+def test_a_survey_the_hyperbola_fits_find_no_velocity_on_gets_the_chains() -> None:
+    from gprbot.errors import InterpretationError
+    from gprbot.gpr.preprocess import preprocess
+    from gprbot.gpr.velocity import estimate_velocity
+    from gprbot.infer.pipeline import survey_velocity
+
+    # Two pipes 10 cm apart at 900 MHz (FDTD dev half): their flanks overlap, the survey's hyperbola
+    # fits find nothing to use, and the whole survey used to be refused for want of a velocity.
+    case = next(c for c in fdtd_cases() if c.name == "two_pipes_900")
+    survey = fdtd_survey(case, json.loads((FDTD_DATA / "two_pipes_900.json").read_text()))
+    cfg = eval_end_to_end.chain_config(load_config(), survey, "classical", "geometric")
+    processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
+    with pytest.raises(InterpretationError):
+        estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
+    v, estimated, hints = survey_velocity(processed, cfg)
+    assert estimated and hints == ()
+    assert abs(v / survey.true_velocity - 1.0) < 0.1

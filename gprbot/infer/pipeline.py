@@ -17,7 +17,11 @@ from numpy.typing import NDArray
 from gprbot.config import Config, model_path
 from gprbot.errors import InterpretationError
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
+from gprbot.gpr.chain.candidates import apex_candidates
+from gprbot.gpr.chain.prepare import prepare
+from gprbot.gpr.chain.reflectors import fit_reflectors
 from gprbot.gpr.chain.run import interpret
+from gprbot.gpr.chain.velocity import estimate_velocity as chain_velocity
 from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
@@ -33,10 +37,33 @@ from gprbot.reconstruct.survey_result import LineResult, SurveyResult
 
 def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool, tuple[CrossingHint, ...]]:
     """The survey's wave velocity (configured eps_r, else all hyperbolas) and the pipes' crossing angles."""
-    estimate = estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
+    try:
+        estimate = estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
+    except InterpretationError:
+        if cfg.gpr.eps_r is not None:
+            return velocity_from_eps(cfg.gpr.eps_r), False, ()
+        # The survey's hyperbola fits found none to use; the interpretation chain's migration focus often still
+        # does (the FDTD dev half laid on survey lines: 5 of the 6 surveys refused for want of a velocity).
+        return chain_survey_velocity(list(processed.values()), cfg), True, ()
     if cfg.gpr.eps_r is not None:
         return velocity_from_eps(cfg.gpr.eps_r), False, estimate.crossings
     return float(estimate.v), True, estimate.crossings
+
+
+def chain_survey_velocity(lines: Sequence[BScan], cfg: Config) -> float:
+    """The velocity the lines' diffractions agree on: each line's chain estimate, their median weighted by 1/sigma²."""
+    votes = []
+    for b in lines:
+        prep = prepare(b, cfg.gpr)
+        est = chain_velocity(prep, fit_reflectors(prep, apex_candidates(prep)))
+        if est is not None and est.sigma > 0:
+            votes.append((est.v, 1.0 / est.sigma**2))
+    if not votes:
+        raise InterpretationError("no reflection hyperbola found to estimate the velocity from; "
+                                  "give the slab's eps_r in the config")
+    votes.sort()
+    cum = np.cumsum([w for _, w in votes])
+    return float(votes[int(np.searchsorted(cum, 0.5 * cum[-1]))][0])
 
 
 @functools.lru_cache(maxsize=2)
