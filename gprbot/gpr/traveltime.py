@@ -85,7 +85,10 @@ def cylinder_specular_point(
     Returns (surface point (..., 3), distance from the ground point to the axis (...,)). The
     specular point of a cylinder seen from a point lies on the line from that point to its nearest
     axis point; taking the ground point under the antenna (not the antenna itself) is exact for a
-    zero-height antenna and off by well under a millimetre in depth for heights of a few cm.
+    zero-height antenna only. Above the ground the reflecting ray is the refracted one aimed at the
+    axis, so the true point lies nearer the pipe's top: at 5 cm height and eps_r 8 this point makes a
+    10 cm pipe's far flank later than a point target's, where it is earlier (a known error of our
+    forward model and of the chain's fits; see issue 12's notes, branch exp/specular-geometry).
     """
     g = np.zeros((*np.asarray(mid_xy).shape[:-1], 3))
     g[..., :2] = mid_xy
