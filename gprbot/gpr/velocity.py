@@ -44,6 +44,9 @@ _ANGLE_STD_RAD = 0.025
 _MIN_CHAIN_LINES = 3
 
 
+NO_HYPERBOLA = "no reflection hyperbola found to estimate the velocity from; give the slab's eps_r in the config"
+
+
 @dataclass(frozen=True)
 class CrossingHint:
     """Where a pipe crosses a survey line (its apex, site-frame x, y) and the sine of the crossing angle.
@@ -255,9 +258,7 @@ def estimate_velocity(
     ]
     sines = [1.0 if c is None else c[0] for line_angles in linked for c in line_angles]
     if not hyperbolas:
-        raise InterpretationError(
-            "no reflection hyperbola found to estimate the velocity from; give the slab's eps_r in the config"
-        )
+        raise InterpretationError(NO_HYPERBOLA)
     v0 = V_GUESS_M_PER_NS
     period = 1000.0 / gpr.centre_frequency_mhz
     kept = list(range(len(hyperbolas)))

@@ -22,10 +22,11 @@ from gprbot.gpr.chain.prepare import prepare
 from gprbot.gpr.chain.reflectors import fit_reflectors
 from gprbot.gpr.chain.run import interpret
 from gprbot.gpr.chain.velocity import estimate_velocity as chain_velocity
+from gprbot.gpr.chain.velocity import weighted_median
 from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.gpr.velocity import CrossingHint
+from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.migrationnet import MigrationNetInterpreter
 from gprbot.infer.refine import FitRefinerModel, refined_reconstruction
@@ -59,11 +60,8 @@ def chain_survey_velocity(lines: Sequence[BScan], cfg: Config) -> float:
         if est is not None and est.sigma > 0:
             votes.append((est.v, 1.0 / est.sigma**2))
     if not votes:
-        raise InterpretationError("no reflection hyperbola found to estimate the velocity from; "
-                                  "give the slab's eps_r in the config")
-    votes.sort()
-    cum = np.cumsum([w for _, w in votes])
-    return float(votes[int(np.searchsorted(cum, 0.5 * cum[-1]))][0])
+        raise InterpretationError(NO_HYPERBOLA)
+    return weighted_median(np.array([v for v, _ in votes]), np.array([w for _, w in votes]))
 
 
 @functools.lru_cache(maxsize=2)

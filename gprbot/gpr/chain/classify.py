@@ -1,15 +1,16 @@
 """Stage 5: fitted reflectors → classified detections: pipe or rebar, echoes dropped, a confidence each.
 
 Rules (what a GPR analyst reads off a radargram):
-- a **hyperbola** has picks on both flanks (or a long one at the line's end), a small misfit and a
-  velocity of its own consistent with the line's;
+- a **hyperbola** has picks on both flanks (or a long one at the line's end), a small misfit, a
+  velocity of its own consistent with the line's, and an apex earlier than both flanks;
 - the lower arms of two neighbours' crossing flanks (a V whose picks lie on their curves) are dropped;
 - an **echo** of another target is dropped: a reflector under a stronger one at the same x, arriving
   within a pipe's inner-echo delay (a PVC pipe's bottom, ringing) or at twice its time (a surface multiple);
 - **rebar**: four or more reflectors (three if thin) at one cover, evenly spaced (a bar may be
   missing) — a mesh's row; everything else that passes is a **pipe**;
 - the reflection's sign against the direct wave says whether the target is slower (metal, water,
-  wet) or faster (air-filled, a void) than the host.
+  wet) or faster (air-filled, a void) than the host;
+- a **radius** is reported as fitted only where the fit measures it (`reported_radius`).
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Two-way times of a common-offset antenna above the ground to a cylinder crossing the line at right angles.
 
 The fits evaluate this thousands of times, so it is the lean form of `traveltime.two_way_time`: rays
-refract at the surface (Snell), the bending point found by Newton's method from the paraxial solution,
-two iterations to under a picosecond.
+refract at the surface (Snell), the bending point found by Newton's method from the better of the paraxial
+and critical-angle limits, two iterations to under a picosecond.
 """
 
 from __future__ import annotations

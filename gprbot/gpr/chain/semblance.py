@@ -90,9 +90,9 @@ def semblance(
     w = np.arange(-half_window, half_window + 1)
     s = np.rint(samples).astype(np.intp)[..., None] + w  # (..., nk, nw)
     valid = aperture[..., None] & inside[..., None] & (s >= 0) & (s < ns)
-    # One flat index: a faster gather; single precision: half the memory traffic of the gathered windows.
+    # One flat index: a faster gather (of the single-precision copy: half the memory traffic).
     flat = np.minimum(np.maximum(cols, 0), nx - 1)[..., None] * ns + np.minimum(np.maximum(s, 0), ns - 1)
-    vals = prep.data.astype(np.float32).ravel()[flat]
+    vals = prep.data32.ravel()[flat]
     vals *= valid
     n = valid[..., 0].sum(axis=-1)
     stacked = (vals.sum(axis=-2) ** 2).sum(axis=-1)

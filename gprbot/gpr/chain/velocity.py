@@ -84,7 +84,7 @@ def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatA
     # (a peak's position, not its last digits, is what the vote needs).
     w_lo, w_hi = (weight * (1.0 - frac)).astype(np.float32), (weight * frac).astype(np.float32)
     # Traces beyond the line's ends are zeros: pad by the reach, then one flat index serves every gather.
-    flat = np.pad(prep.data.astype(np.float32), ((reach, reach), (0, 0))).ravel()
+    flat = np.pad(prep.data32, ((reach, reach), (0, 0))).ravel()
     at_first = (lags + reach)[None, :, None] * ns + i0  # flat index for the window's first column
     cols = np.arange(max(0, column - half), min(nx, column + half + 1))
     out = np.zeros(len(velocities))
@@ -138,8 +138,8 @@ def _primaries(prep: PreparedBScan, strongest_first: Sequence[Reflector]) -> lis
         x, t = prep.x_m[r.candidate.column], r.candidate.t_ns
         if not any(_echo_of(x, t, prep.x_m[k.candidate.column], k.candidate.t_ns) for k in kept):
             kept.append(r)
-    order = {id(r): k for k, r in enumerate(strongest_first)}
-    return sorted(kept, key=lambda r: order[id(r)])
+    primary = {id(r) for r in kept}
+    return [r for r in strongest_first if id(r) in primary]  # strongest first again
 
 
 def _echo_of(x: float, t: float, x_primary: float, t_primary: float) -> bool:
@@ -149,6 +149,13 @@ def _echo_of(x: float, t: float, x_primary: float, t_primary: float) -> bool:
     under = dx <= ECHO_X_M and t > t_primary
     multiple = dx <= 2.0 * ECHO_X_M and abs(t / max(t_primary, 1e-9) - 2.0) <= MULTIPLE_TIME_TOLERANCE
     return under or multiple
+
+
+def weighted_median(values: FloatArray, weights: FloatArray) -> float:
+    """The value at which the weights, summed in the values' order, reach half their total."""
+    order = np.argsort(values)
+    cum = np.cumsum(np.asarray(weights, dtype=np.float64)[order])
+    return float(np.asarray(values)[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
 def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> VelocityEstimate | None:
@@ -161,9 +168,7 @@ def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> V
     if not votes:
         return None
     v, w = np.array([x[0] for x in votes]), np.array([x[1] for x in votes])
-    order = np.argsort(v)
-    cum = np.cumsum(w[order])
-    median = float(v[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    median = weighted_median(v, w)
     spread = float(np.sqrt(np.sum(w * np.log(v / median) ** 2) / np.sum(w)))
     step = math.log(V_MAX / V_MIN) / (COARSE_STEPS - 1) / (FINE_STEPS - 1) * 2.0
     n = len(votes)
