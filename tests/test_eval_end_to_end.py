@@ -100,3 +100,8 @@ def test_a_survey_the_hyperbola_fits_find_no_velocity_on_gets_the_chains() -> No
     v, estimated, hints = survey_velocity(processed, cfg)
     assert estimated and hints == ()
     assert abs(v / survey.true_velocity - 1.0) < 0.1
+    # A line too short to interpret (a survey stopped just after it began one) does not refuse the others.
+    first = processed[min(processed)]
+    stub = dataclasses.replace(first, data=first.data[:2], positions=first.positions[:2], times=first.times[:2],
+                               position_std_m=None)
+    assert survey_velocity({**processed, max(processed) + 1: stub}, cfg)[0] == pytest.approx(v)

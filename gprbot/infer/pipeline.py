@@ -55,7 +55,10 @@ def chain_survey_velocity(lines: Sequence[BScan], cfg: Config) -> float:
     """The velocity the lines' diffractions agree on: each line's chain estimate, their median weighted by 1/sigma²."""
     votes = []
     for b in lines:
-        prep = prepare(b, cfg.gpr)
+        try:
+            prep = prepare(b, cfg.gpr)
+        except InterpretationError:  # a line too short or broken to read: the others still vote
+            continue
         est = chain_velocity(prep, fit_reflectors(prep, apex_candidates(prep)))
         if est is not None and est.sigma > 0:
             votes.append((est.v, 1.0 / est.sigma**2))
