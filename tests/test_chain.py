@@ -172,9 +172,13 @@ def test_a_radius_the_curve_does_not_measure_puts_the_centre_halfway() -> None:
 
     measured = CylinderFit(0.5, 0.2, 0.04, V, 0.001, 0.001, 0.004, 0.0, 0.01, 30)
     assert reported_radius(measured) == (0.04, 0.004, True)
-    loose = replace(measured, sigma_radius_m=0.03)
+    loose = replace(measured, sigma_radius_m=0.015)
     radius, sigma, supported = reported_radius(loose)
     assert not supported and radius == pytest.approx(0.02) and sigma == pytest.approx(0.02)
+    # A radius the fit put at 0 with a wide error is reported with that error, not as "0 ± 0".
+    at_zero = replace(measured, radius_m=0.0, sigma_radius_m=0.011)
+    assert reported_radius(at_zero) == (0.0, 0.011, False)
+    assert reported_radius(replace(measured, sigma_radius_m=0.03))[1] == pytest.approx(0.03)
 
 
 def test_a_line_shorter_than_its_hyperbola_keeps_the_apex() -> None:

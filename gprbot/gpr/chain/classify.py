@@ -211,7 +211,8 @@ def _confidence(prep: PreparedBScan, r: Reflector, fit: CylinderFit) -> float:
 
 
 def reported_radius(fit: CylinderFit) -> tuple[float, float, bool]:
-    """(radius, 1-sigma, supported): the fit's where its curve measures it, else the middle of [0, fitted] ± half.
+    """(radius, 1-sigma, supported): the fit's where its curve measures it, else the middle of [0, fitted], ± at
+    least half of it.
 
     The curvature that tells a pipe from a bar is a few tens of picoseconds on the flanks, the size of
     the difference between any ray model and the data; where the fit's error bar is wider than the
@@ -221,7 +222,8 @@ def reported_radius(fit: CylinderFit) -> tuple[float, float, bool]:
     if fit.sigma_radius_m <= max(RADIUS_SUPPORT * fit.radius_m, 0.003):
         return fit.radius_m, fit.sigma_radius_m, True
     half = 0.5 * fit.radius_m
-    return half, half, False
+    # Never surer than the fit itself: a curve fitted at radius 0 with a wide error is no "0 ± 0".
+    return half, max(half, fit.sigma_radius_m), False
 
 
 def classify(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> tuple[ClassifiedDetection, ...]:
