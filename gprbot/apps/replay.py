@@ -73,10 +73,11 @@ def load_run(run_dir: Path, cfg: Config | None = None) -> RecordedRun:
     sensors: list[Any] = []
     events: list[SurveyEvent] = []
     snapshot: FusionSnapshot | None = None
+    after_snapshot = 0  # sensors[after_snapshot:] came after the snapshot: the filter's state holds the rest
     for record in reader:
         message = record.message
         if isinstance(message, FusionSnapshot) and snapshot is None:
-            snapshot = message
+            snapshot, after_snapshot = message, len(sensors)
         elif isinstance(message, Trace):
             traces.append(message)
         elif isinstance(message, Pose):
@@ -88,7 +89,7 @@ def load_run(run_dir: Path, cfg: Config | None = None) -> RecordedRun:
             sensors.append(message)
     source = "recorded"
     if not poses and snapshot is not None:
-        poses, source = continue_filter(snapshot, sensors, config), "continued"
+        poses, source = continue_filter(snapshot, sensors[after_snapshot:], config), "continued"
     elif not poses and sensors:
         poses, source = fuse_poses(sensors, config), "fused"
     poses = _strictly_increasing(poses)

@@ -222,11 +222,14 @@ class SurveyRunner:
         header = make_run_header(self.cfg, time.time(), run=run.name, kind="survey",
                                  survey=to_dict(run.survey), **self.run_meta())
         self.recorder.open(run.run_dir, header)
+        # Replay continues this filter. The snapshot goes in the same step as the open, with no await
+        # between: a sensor message logged before it would be pushed twice on replay (once inside the
+        # snapshot's state, once from the log); on a loaded machine the prune below let dozens in.
+        self.recorder.append(self.fusion.snapshot(self.clock()), self.clock())
         # Old runs beyond the configured limits go now, before this one fills the disk (off the event loop).
         pruned = await asyncio.to_thread(prune_runs, Path(self.cfg.runs_dir), self.cfg.retention, {run.name})
         if pruned:
             self.emit(f"retention: deleted {len(pruned)} old runs ({', '.join(r.name for r in pruned)})")
-        self.recorder.append(self.fusion.snapshot(self.clock()), self.clock())  # replay continues this filter
         await self._beating(self._wait_fusion(), beat)
         if run.abort_reason is None:
             run.state = "running"
