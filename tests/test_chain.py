@@ -109,6 +109,16 @@ def test_rebar_rows() -> None:
     assert _rebar_rows(big_three) == set()  # three wide reflectors in a row may be pipes
 
 
+def test_a_row_with_missing_bars_and_an_interloper_is_still_a_row() -> None:
+    # A simulated survey line over a mesh at 16.8 cm: four bars not picked (one gap of three), and a crossing
+    # of two neighbours' flanks halfway between the first two, at the same cover.
+    xs = [0.109, 0.193, 0.276, 0.615, 0.945, 1.285, 1.452, 1.618]
+    fits = [_fit(x, 0.055, 0.0) for x in xs]
+    assert _rebar_rows(fits) == {0, 2, 3, 4, 5, 6, 7}
+    sparse = [_fit(x, 0.05) for x in (0.1, 0.3, 1.2, 1.4)]  # two pairs off one lattice: not a mesh
+    assert _rebar_rows(sparse) == set()
+
+
 def test_interpret_finds_pipes_and_a_rebar_row_at_a_given_velocity() -> None:
     targets = [SyntheticTarget(0.55, 0.25, 0.03, 1.0), SyntheticTarget(1.45, 0.3, 0.05, 1.0)]
     targets += [SyntheticTarget(0.1 + 0.3 * k, 0.07, 0.006, 0.5) for k in range(7)]

@@ -6,8 +6,9 @@ Rules (what a GPR analyst reads off a radargram):
 - the lower arms of two neighbours' crossing flanks (a V whose picks lie on their curves) are dropped;
 - an **echo** of another target is dropped: a reflector under a stronger one at the same x, arriving
   within a pipe's inner-echo delay (a PVC pipe's bottom, ringing) or at twice its time (a surface multiple);
-- **rebar**: four or more reflectors (three if thin) at one cover, evenly spaced (a bar may be
-  missing) — a mesh's row; everything else that passes is a **pipe**;
+- **rebar**: four or more reflectors (three if thin) at one cover on one evenly spaced lattice (bars
+  may be missing, others at that cover may be pipes) — a mesh's row; everything else that passes is a
+  **pipe**;
 - the reflection's sign against the direct wave says whether the target is slower (metal, water,
   wet) or faster (air-filled, a void) than the host;
 - a **radius** is reported as fitted only where the fit measures it (`reported_radius`).
@@ -40,7 +41,9 @@ ROW_MIN_BARS = 3
 ROW_DEPTH_TOLERANCE_M = 0.015
 ROW_DEPTH_RELATIVE = 0.35
 ROW_ANY_RADIUS_BARS = 4
-ROW_SPACING_TOLERANCE = 0.25  # of the row's base spacing
+ROW_SITE_TOLERANCE = 0.2  # spacings: bars are tied by hand, a few centimetres off their nominal places
+ROW_MIN_FILL = 0.6  # of the sites between a row's end bars hold a reflector (a bar may be missing)
+MIN_BAR_SPACING_M = 0.04
 BAR_MAX_RADIUS_M = 0.02
 ECHO_X_TOLERANCE_M = 0.03
 MULTIPLE_X_TOLERANCE_M = 0.012
@@ -157,30 +160,39 @@ def _on_other_flanks(prep: PreparedBScan, r: Reflector, stronger: Sequence[Cylin
     return float(np.mean(near)) >= ON_FLANK_FRACTION
 
 
-def _regular(xs: Sequence[float]) -> bool:
-    """Whether positions are evenly spaced, allowing for a missing bar and hand-placement scatter."""
-    gaps = np.diff(xs)
-    if len(gaps) == 0 or not np.all(gaps > 0.03):
-        return False
-    # Bars are placed by hand: spacing varies by ±20 % around the nominal one, and one may be missing.
-    base = float(np.median(gaps))
-    if np.count_nonzero(gaps < 1.5 * base) < len(gaps) / 2:
-        return False
-    base = float(np.median(gaps[gaps < 1.5 * base]))
-    multiples = gaps / base
-    return bool(np.all(np.abs(multiples - np.round(multiples)) <= ROW_SPACING_TOLERANCE)
-                and np.all(np.round(multiples) >= 1) and np.max(multiples) <= 3.5)
+def _lattice(xs: Sequence[float]) -> list[int]:
+    """Indices of the positions (sorted) that sit on one evenly spaced lattice: the mesh's bar positions.
 
-
-def _regular_run(row: list[int], fits: Sequence[CylinderFit]) -> list[int]:
-    """The row, or the row without one or two members at its ends (a line-end artefact, a pipe at the
-    same cover), whichever is evenly spaced first; [] when none is."""
-    for drop in range(3):
-        for head in range(drop + 1):
-            run = row[head: len(row) - (drop - head)]
-            if len(run) >= ROW_MIN_BARS and _regular([fits[j].x0_m for j in run]):
-                return run
-    return []
+    Every pair of near neighbours (up to three places apart in x), one to three spacings apart, proposes
+    a lattice; the one holding the most positions wins (closest fit on a tie). A position belongs when it
+    lies within ROW_SITE_TOLERANCE spacings of a site, one per site; the lattice must be filled to
+    ROW_MIN_FILL between its ends. So an interloper at the same cover (a pipe, a neighbour's crossing
+    flanks halfway between two bars) and missing bars (shadowed, not picked) leave the row a row.
+    """
+    best: list[int] = []
+    best_misfit = math.inf
+    for i, xi in enumerate(xs):
+        for xj in xs[i + 1: i + 4]:
+            for k in (1, 2, 3):
+                spacing = (xj - xi) / k
+                if spacing < MIN_BAR_SPACING_M:
+                    continue
+                on_site: dict[int, tuple[float, int]] = {}
+                for m, x in enumerate(xs):
+                    site = round((x - xi) / spacing)
+                    off = abs(x - xi - site * spacing) / spacing
+                    if off <= ROW_SITE_TOLERANCE and (site not in on_site or off < on_site[site][0]):
+                        on_site[site] = (off, m)
+                sites = sorted(on_site)
+                if len(sites) < max(ROW_MIN_BARS, len(best)):
+                    continue
+                filled = len(sites) / (sites[-1] - sites[0] + 1)
+                if filled < ROW_MIN_FILL:
+                    continue
+                misfit = sum(off for off, _ in on_site.values()) / len(sites)
+                if len(sites) > len(best) or misfit < best_misfit:
+                    best, best_misfit = [on_site[q][1] for q in sites], misfit
+    return best
 
 
 def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
@@ -191,11 +203,15 @@ def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
     """
     bars: set[int] = set()
     order = sorted(range(len(fits)), key=lambda i: fits[i].top_m)
+    seen: set[tuple[int, ...]] = set()
     for i in order:
         cover = fits[i].top_m
         tol = max(ROW_DEPTH_TOLERANCE_M, ROW_DEPTH_RELATIVE * cover)
         row = sorted((j for j in range(len(fits)) if abs(fits[j].top_m - cover) <= tol), key=lambda j: fits[j].x0_m)
-        run = _regular_run(row, fits)
+        if tuple(row) in seen:  # neighbours at one cover see the same row
+            continue
+        seen.add(tuple(row))
+        run = [row[m] for m in _lattice([fits[j].x0_m for j in row])]
         thin = all(fits[j].radius_m - fits[j].sigma_radius_m <= BAR_MAX_RADIUS_M for j in run)  # or not measurable
         if run and (len(run) >= ROW_ANY_RADIUS_BARS or thin):
             bars.update(run)
