@@ -272,7 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("--spacing", type=float, help="trace spacing in m (default: from the header's traces/m)")
     interp.add_argument("--height", type=float, help="antenna height above the surface in m (default: 0)")
     interp.add_argument("--offset", type=float, help="Tx-Rx separation in m (default: from the file or antenna)")
-    interp.add_argument("--config", help="config YAML (interpretation.method: classical or migrationnet)")
+    interp.add_argument("--config", help="config YAML (interpretation.method: chain/classical or migrationnet)")
     interp.add_argument("--out", help="directory for detections.json and PNGs (default: beside runs/)")
     interp.add_argument("--json", action="store_true", help="print detections.json instead of the report")
     interp.set_defaults(func=_cmd_interpret)

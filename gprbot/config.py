@@ -83,7 +83,7 @@ class PoseNoiseConfig:
 class InterpretationConfig:
     """How each B-scan becomes a cross-section and detections."""
 
-    method: Literal["classical", "migrationnet"] = "classical"
+    method: Literal["classical", "chain", "migrationnet"] = "classical"
     migrationnet_model: str = "models/migrationnet.onnx"  # used when method is migrationnet; see model_path()
     migration: Literal["kirchhoff", "stolt"] = "kirchhoff"
     aperture_deg: float = 35.0

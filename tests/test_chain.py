@@ -16,7 +16,7 @@ from gprbot.gpr.chain.fit import CylinderFit, fit_cylinders
 from gprbot.gpr.chain.geometry import cylinder_time, cylinder_time_gradient
 from gprbot.gpr.chain.picks import Picks
 from gprbot.gpr.chain.prepare import decimation_factor, noise_level, prepare
-from gprbot.gpr.chain.run import interpret
+from gprbot.gpr.chain.run import SurveyHint, interpret
 from gprbot.gpr.line_model import cylinder_times
 
 V = 0.1
@@ -263,3 +263,27 @@ def test_the_apex_test_of_all_events_at_once_matches_its_definition_event_by_eve
         k, half, tol = int(rng.integers(1, 4)), int(rng.integers(1, 6)), float(rng.uniform(0.0, 3.0))
         expected = [one(events, int(c), int(r), k, half, tol) for c, r in zip(cols, rows, strict=True)]
         assert list(_earliest(events, cols, rows, k, half, tol)) == expected
+
+
+def test_a_surveys_crossing_hint_puts_an_oblique_pipe_at_its_depth() -> None:
+    # Along a line crossed at angle θ, a pipe's hyperbola is the right-angle one of a pipe 1/sin θ deeper in a
+    # host 1/sin θ faster: synthesise that, interpret at the host's velocity with the survey's hint.
+    sin = 0.7
+    b = synthetic_bscan([SyntheticTarget(1.0, 0.25 / sin, 0.03 / sin, 1.0)], v_m_per_ns=V / sin,
+                        centre_frequency_mhz=900.0, n_traces=200, spacing_m=0.01, samples=512, dt_ns=0.025, t0_ns=1.0,
+                        antenna_height_m=0.0, tx_rx_offset_m=0.02, noise=0.01, direct_wave=3.0)
+    gpr = replace(GPR, antenna_height_m=0.0, tx_rx_offset_m=0.02)
+    hinted = interpret(b, gpr, V, hint_at=lambda x: SurveyHint(sin_cross=sin))
+    pipe = min(hinted.pipes, key=lambda d: abs(d.x_m - 1.0))
+    assert abs(pipe.x_m - 1.0) < 0.02 and abs(pipe.fit.top_m - 0.22) < 0.015 and pipe.sin_cross == pytest.approx(sin)
+    square = interpret(b, gpr, V)  # the same curve taken at right angles: not where the pipe is
+    assert all(abs(d.depth_m - 0.25) > 0.03 for d in square.pipes if abs(d.x_m - 1.0) < 0.05)
+
+
+def test_a_radius_the_curve_cannot_measure_is_the_surveys() -> None:
+    b = _line([SyntheticTarget(0.8, 0.2, 0.004, 1.0)], noise=0.1)  # a thin bar in noise: its radius is not measured
+    own = interpret(b, GPR, V)
+    assert own.pipes and not any(d.radius_supported for d in own.pipes)
+    held = interpret(b, GPR, V, hint_at=lambda x: SurveyHint(radius_m=0.05))
+    for d in held.pipes:
+        assert d.radius_m == 0.05 and d.depth_m == pytest.approx(d.fit.top_m + 0.05)

@@ -7,7 +7,8 @@ training.evaluate scores the completion models on degraded *truth* masks and tra
 scores interpretation alone with the *true* velocity. Here every survey (training.e2e_surveys: held-out
 simulated test scenes, or the FDTD test half laid on parallel lines) goes through the product's own
 stages: preprocessing, the velocity estimated from the hyperbolas (eps_r unknown), each line interpreted
-by the classical path or MigrationNet, the slices registered at the recorded positions and completed by
+by the classical path, the interpretation chain (gprbot.gpr.chain, with the survey's crossing hints) or
+MigrationNet, the slices registered at the recorded positions and completed by
 the runtime's completion dispatch (gprbot.infer.pipeline.complete_slices) for every name in COMPLETIONS.
 Reported per chain: the dense cloud's CD2×10³ / CD1×10² / F@1% in the survey's unit cube (all chains
 share one scale), and the pipes against the truth (gprbot.simulated.evaluation, two-way matching). Every
@@ -44,7 +45,7 @@ from training.pointcloud_data import load_split
 from training.random_scenes import CASES
 
 ROOT = Path(__file__).resolve().parents[1]
-INTERPRETERS = ("classical", "migrationnet")
+INTERPRETERS = ("classical", "chain", "migrationnet")
 # names of reconstruction.completion; a new one is scored by adding it here
 # refined_sK: the refined completion with the FitRefiner of training seed K (models/fit_refiner_sK.onnx), the spread
 COMPLETIONS = ("geometric", "extended", "refined", "refined_s1", "refined_s2", "gprnet")

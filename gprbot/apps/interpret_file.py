@@ -135,9 +135,10 @@ def interpret_file(
 ) -> str:
     """Interpret a GPR file of any format, write detections.json and PNGs, and return a printable report.
 
-    The configured `interpretation.method` decides: "classical" is the interpretation chain
-    (gprbot.gpr.chain: pipes and rebars, velocity estimated from the hyperbolas); "migrationnet" is the
-    learned model on the section migrated at the chain's (or the given) velocity.
+    The configured `interpretation.method` decides: "chain" and "classical" are the interpretation chain
+    (gprbot.gpr.chain: pipes and rebars, velocity estimated from the hyperbolas; the survey's classical
+    interpreter needs its other lines, and on single files the chain measures better: validation/REPORT.md);
+    "migrationnet" is the learned model on the section migrated at the chain's (or the given) velocity.
     """
     cfg = config or load_config()
     bscan, rg = file_bscan(path, channel, spacing_m, allow_partial)
@@ -170,7 +171,7 @@ def interpret_file(
             "channel": channel,
             "format": rg.source_format,
             "antenna": rg.antenna,
-            "method": "interpretation chain" if method == "classical" else "migrationnet",
+            "method": "migrationnet" if method == "migrationnet" else "interpretation chain",
             "centre_frequency_mhz": gpr.centre_frequency_mhz,
             "dominant_frequency_mhz": round(prep.frequency_mhz, 1),
             "antenna_height_m": gpr.antenna_height_m,

@@ -20,7 +20,7 @@ from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.candidates import apex_candidates
 from gprbot.gpr.chain.prepare import prepare
 from gprbot.gpr.chain.reflectors import fit_reflectors
-from gprbot.gpr.chain.run import interpret
+from gprbot.gpr.chain.run import SurveyHint, interpret
 from gprbot.gpr.chain.velocity import estimate_velocity as chain_velocity
 from gprbot.gpr.chain.velocity import weighted_median
 from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
@@ -34,6 +34,8 @@ from gprbot.reconstruct.completion import Reconstruction, geometric_completion
 from gprbot.reconstruct.extension import Footprint, survey_footprint
 from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 from gprbot.reconstruct.survey_result import LineResult, SurveyResult
+
+HINT_RADIUS_M = 0.06  # a hint applies to an apex this close (as in the classical interpreter's hint matching)
 
 
 def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool, tuple[CrossingHint, ...]]:
@@ -84,8 +86,10 @@ def gprnet_completion(configured_path: str, threads: int, models_dir: str | None
 def interpret_line(
     line: int, processed: BScan, cfg: Config, velocity: float, hints: Sequence[CrossingHint] = ()
 ) -> LineResult:
-    """Interpret one preprocessed line (MigrationNet or classical, as configured) and register it in 3D."""
-    section = replace(line_section(processed, cfg, velocity, hints), rebars=line_rebars(processed, cfg, velocity))
+    """Interpret one preprocessed line (as configured) and register it in 3D."""
+    section = line_section(processed, cfg, velocity, hints)
+    if cfg.interpretation.method != "chain":  # the chain's section carries its own rebar rows
+        section = replace(section, rebars=line_rebars(processed, cfg, velocity))
     cols = processed.position_at(section.x_m)
     std = processed.position_std_m
     pose_std = float(np.sqrt(np.mean(np.square(std)))) if std is not None and std.size else 0.0
@@ -100,7 +104,24 @@ def line_section(
         interpreter = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads,
                                               cfg.models_dir)
         return interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
+    if cfg.interpretation.method == "chain":
+        return interpret(processed, cfg.gpr, velocity, depth_max_m=cfg.interpretation.depth_max_m,
+                         hint_at=survey_hints(processed, hints)).section
     return interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
+
+
+def survey_hints(processed: BScan, hints: Sequence[CrossingHint]) -> Callable[[float], SurveyHint]:
+    """What the survey's linked apices say of a pipe whose apex lies at along-track x on this line: the nearest
+    hint within HINT_RADIUS_M (its crossing angle and held radius), else nothing (at right angles, own radius)."""
+    def hint_at(x_m: float) -> SurveyHint:
+        xy = processed.position_at(np.array([x_m]))[0, :2]
+        near = [(float(np.hypot(h.xy[0] - xy[0], h.xy[1] - xy[1])), k) for k, h in enumerate(hints)]
+        close = [n for n in near if n[0] < HINT_RADIUS_M]
+        if not close:
+            return SurveyHint()
+        nearest = hints[min(close)[1]]
+        return SurveyHint(nearest.sin_cross, nearest.radius_m)
+    return hint_at
 
 
 def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detection, ...]:

@@ -70,6 +70,7 @@ class ClassifiedDetection:
     fit: CylinderFit
     reflector: Reflector
     found_by: Literal["hyperbola", "migrated spot"] = "hyperbola"  # which stage found it (see spots.py)
+    sin_cross: float = 1.0  # sine of the angle the pipe crosses the line at (1: at right angles; a survey's hint)
 
 
 def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:

@@ -148,16 +148,19 @@ def fit_each(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> list[R
     return out
 
 
-def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> list[Reflector | None]:
-    """Every hyperbola re-picked along its curve at velocity v and fitted with it fixed (None: too few picks)."""
+def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
+                           v: float | Sequence[float]) -> list[Reflector | None]:
+    """Every hyperbola re-picked along its curve at velocity v (one, or one per reflector) and fitted with it
+    fixed (None: too few picks)."""
     out: list[Reflector | None] = [None] * len(reflectors)
     if not reflectors:
         return out
-    first = fit_cylinders(prep, [r.picks for r in reflectors], v, free_velocity=False)
+    vs = [float(x) for x in np.broadcast_to(np.asarray(v, dtype=np.float64), (len(reflectors),))]
+    first = fit_cylinders(prep, [r.picks for r in reflectors], vs, free_velocity=False)
     done = [(k, r, f) for k, (r, f) in enumerate(zip(reflectors, first, strict=True)) if f is not None]
-    curves = [(v, f.radius_m, f.depth_m, f.x0_m) for _, _, f in done]
+    curves = [(vs[k], f.radius_m, f.depth_m, f.x0_m) for k, _, f in done]
     again = _pick_all(prep, [r.candidate for _, r, _ in done], curves, 0.3)
-    refits = fit_cylinders(prep, again, v, free_velocity=False)
+    refits = fit_cylinders(prep, again, [vs[k] for k, _, _ in done], free_velocity=False)
     for j, (k, r, f) in enumerate(done):
         refit = refits[j]
         if refit is not None and len(again[j].x_m) >= 0.8 * len(r.picks.x_m):
@@ -169,7 +172,8 @@ def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
     return out
 
 
-def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> tuple[Reflector, ...]:
+def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
+                      v: float | Sequence[float]) -> tuple[Reflector, ...]:
     """Every hyperbola re-picked along its curve at the line's velocity and fitted with it fixed; one per target."""
     fitted = [r for r in refit_each_at_velocity(prep, reflectors, v) if r is not None]
     # The strongest stands for any others that landed on the same target.

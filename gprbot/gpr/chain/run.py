@@ -9,7 +9,8 @@ were made: wavelet and time zero come from the direct wave, the velocity from th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -30,6 +31,16 @@ NOMINAL_VELOCITY = 0.1  # m/ns, concrete: used for depths only when nothing bett
 MAX_IMAGE_CELLS = 1_000_000  # the migrated image is decimated in depth beyond this (cost bound)
 MIN_FOCUS = 0.3  # FDTD dev half and the real SS Mini line: true targets 0.6-3.4, false 0.12-0.27
 FOCUS_WINDOW_M = 0.02
+MASK_DZ_M = 0.0025  # the section's depth step (as the classical interpreter's): registration samples the mask
+MIN_SINE = 0.3  # crossings steeper than ~17 degrees are not told apart from a pipe along the line
+
+
+@dataclass(frozen=True)
+class SurveyHint:
+    """What a survey's other lines say about a pipe crossing this line near one apex."""
+
+    sin_cross: float = 1.0  # sine of its crossing angle (1: at right angles)
+    radius_m: float | None = None  # its radius from all the lines that saw it
 
 
 @dataclass(frozen=True)
@@ -68,6 +79,24 @@ def migrated(prep: PreparedBScan, v: float, depth_max_m: float) -> tuple[NDArray
     return image, z
 
 
+def across(d: ClassifiedDetection, v: float) -> ClassifiedDetection:
+    """A detection fitted at an oblique pipe's along-track velocity v/sin, put at its true depth and radius."""
+    if d.fit.v <= v * 1.001:  # fitted at the line's own velocity: at right angles
+        return d
+    s = v / d.fit.v
+    fit = replace(d.fit, top_m=d.fit.top_m * s, radius_m=d.fit.radius_m * s, sigma_top_m=d.fit.sigma_top_m * s,
+                  sigma_radius_m=d.fit.sigma_radius_m * s, v=v)
+    return replace(d, depth_m=d.depth_m * s, radius_m=d.radius_m * s, radius_sigma_m=d.radius_sigma_m * s,
+                   fit=fit, sin_cross=s)
+
+
+def holding(d: ClassifiedDetection, radius: float | None) -> ClassifiedDetection:
+    """A pipe whose own curve does not measure its radius, given the radius the survey's lines agree on."""
+    if d.kind != "pipe" or d.radius_supported or radius is None:
+        return d
+    return replace(d, depth_m=d.fit.top_m + radius, radius_m=radius, radius_sigma_m=0.3 * radius)
+
+
 def focused(detections: tuple[ClassifiedDetection, ...], image: NDArray[np.float32], x_m: FloatArray,
             z_m: FloatArray, band_m: float) -> tuple[ClassifiedDetection, ...]:
     """The detections whose top the migrated image focuses (a V of crossing flanks or a flat bump fits a curve
@@ -87,15 +116,26 @@ def focused(detections: tuple[ClassifiedDetection, ...], image: NDArray[np.float
 
 def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v: float, image: NDArray[np.float32],
              z: FloatArray, estimated: bool) -> CrossSection:
-    """The filled pipe mask on the image's (z, x) grid, with the detections."""
+    """The filled pipe mask and the image on a MASK_DZ_M depth grid, with the detections.
+
+    The migrated image may be coarser in depth (a sixteenth of a wavelength); the mask is what a survey's
+    registration turns into points, so a pipe a few centimetres across must cover more than a few cells.
+    """
+    fine = depth_axis(float(z[-1]), MASK_DZ_M)
+    if len(fine) > len(z):
+        rows = np.interp(fine, z, np.arange(len(z)))
+        lo = np.minimum(rows.astype(np.intp), len(z) - 2)
+        w = (rows - lo)[:, None].astype(np.float32)
+        image = (image[lo] * (1.0 - w) + image[lo + 1] * w).astype(np.float32)
+        z = fine
     dz = float(z[1] - z[0])
     mask = np.zeros((len(z), len(prep.x_m)), dtype=bool)
     pipes, bars = [], []
     for d in detections:
         item = Detection(d.x_m, d.depth_m, d.radius_m, d.confidence)
-        if d.kind == "pipe":
+        if d.kind == "pipe":  # an oblique pipe's cross-section along the line: an ellipse R/sin wide
             r = max(d.radius_m, 0.5 * dz)
-            mask |= (prep.x_m[None, :] - d.x_m) ** 2 + (z[:, None] - d.depth_m) ** 2 <= r * r
+            mask |= ((prep.x_m[None, :] - d.x_m) * d.sin_cross) ** 2 + (z[:, None] - d.depth_m) ** 2 <= r * r
             pipes.append(item)
         else:
             bars.append(item)
@@ -105,8 +145,14 @@ def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v
 def interpret(
     bscan: BScan, gpr: GprConfig, velocity_m_per_ns: float | None = None, *,
     fallback_velocity_m_per_ns: float | None = None, depth_max_m: float | None = None,
+    hint_at: Callable[[float], SurveyHint] | None = None,
 ) -> Interpretation:
-    """Interpret one B-scan: the velocity given, else estimated from its hyperbolas, else the fallback."""
+    """Interpret one B-scan: the velocity given, else estimated from its hyperbolas, else the fallback.
+
+    `hint_at(x)` is what a survey's other lines say of a pipe whose apex lies at along-track x. An oblique
+    pipe's hyperbola along the line is the right-angle one stretched by 1/sin: it is fitted at v/sin and
+    its depth and radius are the fit's times sin. A radius its own curve does not measure is the survey's.
+    """
     notes: list[str] = []
     prep = prepare(bscan, gpr)
     if prep.decimation > 1:
@@ -134,13 +180,18 @@ def interpret(
                    + (f"used {v:.4f} m/ns from the file's permittivity" if fallback_velocity_m_per_ns
                       else f"depths assume {v:.2f} m/ns (typical concrete): pass --velocity"))
             notes.append(f"velocity not estimated: {how}")
-    reflectors = refit_at_velocity(prep, reflectors, v)
-    detections = classify(prep, reflectors, v)
+    # One line's own curve cannot tell an oblique crossing from a faster host (FDTD dev and the negative
+    # geology line: taking fast curves as oblique added false pipes), so only the survey's hints say so.
+    sines = [max(MIN_SINE, hint_at(r.free_fit.x0_m).sin_cross) if hint_at else 1.0 for r in reflectors]
+    reflectors = refit_at_velocity(prep, reflectors, [v / s for s in sines])
+    detections = tuple(across(d, v) for d in classify(prep, reflectors, v))
     depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
     image, z = migrated(prep, v, max(depth, 0.05))
     detections = focused(detections, image, prep.x_m, z, prep.wavelength_m(v))
     spots = find_spots(prep, envelope(image), z, v)
     extra = spot_detections(prep, spots, detections, v)
     detections = relabel_rows(without_echoes_of(detections, extra, prep.wavelength_m(v)) + extra)
+    if hint_at is not None:
+        detections = tuple(holding(d, hint_at(d.x_m).radius_m) for d in detections)
     section = _section(prep, detections, v, image, z, source == "estimated")
     return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))
