@@ -115,8 +115,15 @@ def test_a_row_with_missing_bars_and_an_interloper_is_still_a_row() -> None:
     xs = [0.109, 0.193, 0.276, 0.615, 0.945, 1.285, 1.452, 1.618]
     fits = [_fit(x, 0.055, 0.0) for x in xs]
     assert _rebar_rows(fits) == {0, 2, 3, 4, 5, 6, 7}
-    sparse = [_fit(x, 0.05) for x in (0.1, 0.3, 1.2, 1.4)]  # two pairs off one lattice: not a mesh
+    sparse = [_fit(x, 0.12) for x in (0.1, 0.3, 1.2, 1.4)]  # two pairs off one lattice: not a mesh
     assert _rebar_rows(sparse) == set()
+
+
+def test_two_thin_reflectors_at_a_meshs_cover_and_spacing_are_bars() -> None:
+    assert _rebar_rows([_fit(0.25, 0.045), _fit(0.54, 0.045)]) == {0, 1}  # a short line over a mesh
+    assert _rebar_rows([_fit(0.25, 0.045), _fit(0.75, 0.045)]) == set()  # farther apart than a mesh's bars
+    assert _rebar_rows([_fit(0.25, 0.2), _fit(0.54, 0.2)]) == set()  # two pipes at one depth
+    assert _rebar_rows([_fit(0.25, 0.045, 0.05), _fit(0.54, 0.045, 0.05)]) == set()  # wide: pipes
 
 
 def test_interpret_finds_pipes_and_a_rebar_row_at_a_given_velocity() -> None:

@@ -45,6 +45,10 @@ ROW_SITE_TOLERANCE = 0.2  # spacings: bars are tied by hand, a few centimetres o
 ROW_MIN_FILL = 0.6  # of the sites between a row's end bars hold a reflector (a bar may be missing)
 MIN_BAR_SPACING_M = 0.04
 BAR_MAX_RADIUS_M = 0.02
+# A short line over a mesh may show two bars only: two thin reflectors at one shallow cover, a mesh's
+# spacing apart, are a row too (a slab's utilities lie deeper than its reinforcement's cover).
+PAIR_MAX_COVER_M = 0.08
+PAIR_MAX_SPACING_M = 0.35
 ECHO_X_TOLERANCE_M = 0.03
 MULTIPLE_X_TOLERANCE_M = 0.012
 STRAIGHT_RATIO = 2.0  # a hyperbola fits its picks at least this much better than a straight line
@@ -161,7 +165,7 @@ def _on_other_flanks(prep: PreparedBScan, r: Reflector, stronger: Sequence[Cylin
     return float(np.mean(near)) >= ON_FLANK_FRACTION
 
 
-def _lattice(xs: Sequence[float]) -> list[int]:
+def _lattice(xs: Sequence[float], fewest: int = ROW_MIN_BARS) -> list[int]:
     """Indices of the positions (sorted) that sit on one evenly spaced lattice: the mesh's bar positions.
 
     Every pair of near neighbours (up to three places apart in x), one to three spacings apart, proposes
@@ -185,7 +189,7 @@ def _lattice(xs: Sequence[float]) -> list[int]:
                     if off <= ROW_SITE_TOLERANCE and (site not in on_site or off < on_site[site][0]):
                         on_site[site] = (off, m)
                 sites = sorted(on_site)
-                if len(sites) < max(ROW_MIN_BARS, len(best)):
+                if len(sites) < max(fewest, len(best)):
                     continue
                 filled = len(sites) / (sites[-1] - sites[0] + 1)
                 if filled < ROW_MIN_FILL:
@@ -212,8 +216,11 @@ def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
         if tuple(row) in seen:  # neighbours at one cover see the same row
             continue
         seen.add(tuple(row))
-        run = [row[m] for m in _lattice([fits[j].x0_m for j in row])]
+        fewest = 2 if cover <= PAIR_MAX_COVER_M else ROW_MIN_BARS
+        run = [row[m] for m in _lattice([fits[j].x0_m for j in row], fewest)]
         thin = all(fits[j].radius_m - fits[j].sigma_radius_m <= BAR_MAX_RADIUS_M for j in run)  # or not measurable
+        if len(run) == 2 and not abs(fits[run[1]].x0_m - fits[run[0]].x0_m) <= PAIR_MAX_SPACING_M:
+            continue
         if run and (len(run) >= ROW_ANY_RADIUS_BARS or thin):
             bars.update(run)
     return bars
