@@ -160,6 +160,7 @@ def summarise(rows: Sequence[dict[str, Any]]) -> dict[str, float]:
 def evaluate(surveys: Sequence[Callable[[], Survey]], source: str) -> dict[str, Any]:
     """Every chain on every survey (built lazily, one at a time), summarised overall and per case."""
     base = load_config()
+    version = code_version(["training.eval_end_to_end"])  # of the code that runs (files may change during a run)
     rows: list[dict[str, Any]] = []
     start = time.perf_counter()
     for i, make in enumerate(track(surveys, "surveys", unit="survey")):
@@ -184,7 +185,7 @@ def evaluate(surveys: Sequence[Callable[[], Survey]], source: str) -> dict[str, 
             "median_abs_velocity_err_pct": _median(velocity, 100.0),
             "velocity_not_estimated": len(first) - len(velocity),
             "median_interpret_s_per_scene": {m: _median(t) for m, t in timed.items()},
-            "code_version": code_version(["training.eval_end_to_end"]), "seconds": time.perf_counter() - start,
+            "code_version": version, "seconds": time.perf_counter() - start,
             "load_average": os.getloadavg()[0]}
 
 
