@@ -105,3 +105,21 @@ def test_a_survey_the_hyperbola_fits_find_no_velocity_on_gets_the_chains() -> No
     stub = dataclasses.replace(first, data=first.data[:2], positions=first.positions[:2], times=first.times[:2],
                                position_std_m=None)
     assert survey_velocity({**processed, max(processed) + 1: stub}, cfg)[0] == pytest.approx(v)
+
+
+def test_a_line_too_short_to_interpret_is_left_out_of_the_survey_not_the_survey() -> None:
+    from gprbot.errors import InterpretationError
+    from gprbot.infer.pipeline import reconstruct_survey
+
+    case = next(c for c in fdtd_cases() if c.name == "pvc_air_1600")
+    survey = fdtd_survey(case, json.loads((FDTD_DATA / "pvc_air_1600.json").read_text()))
+    cfg = eval_end_to_end.chain_config(load_config(), survey, "classical", "geometric")
+    first = survey.bscans[min(survey.bscans)]
+    stub = dataclasses.replace(first, data=first.data[:2], positions=first.positions[:2], times=first.times[:2],
+                               position_std_m=None)  # a line the robot was stopped on just after it began
+    result = reconstruct_survey({**survey.bscans, 99: stub}, cfg, np.random.default_rng(0))
+    assert [lr.line for lr in result.lines] == sorted(survey.bscans)
+    assert list(result.skipped_lines) == [99] and "2 traces" in result.skipped_lines[99]
+    assert len(result.reconstruction.pipes) == 1
+    with pytest.raises(InterpretationError, match="no line of the survey could be interpreted: line 99"):
+        reconstruct_survey({99: stub}, cfg, np.random.default_rng(0))

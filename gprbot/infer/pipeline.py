@@ -7,6 +7,7 @@ so that a simulated run and a run on the robot go through the same code.
 from __future__ import annotations
 
 import functools
+import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -35,6 +36,7 @@ from gprbot.reconstruct.extension import Footprint, survey_footprint
 from gprbot.reconstruct.register import SliceCloud, register_slice, resample_cloud
 from gprbot.reconstruct.survey_result import LineResult, SurveyResult
 
+log = logging.getLogger(__name__)
 HINT_RADIUS_M = 0.06  # a hint applies to an apex this close (as in the classical interpreter's hint matching)
 
 
@@ -177,12 +179,23 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
                        on_step: Callable[[str], None] | None = None) -> SurveyResult:
     """Interpret every line of a survey and complete the registered slices into pipes.
 
+    A line that cannot be interpreted (too short, flat traces) is left out and said so (`skipped_lines`):
+    one line cut short must not cost the survey its other lines. InterpretationError when none is left.
     on_step(what) is called after each step (for a progress bar; survey_steps(n) steps in all).
     """
     step = on_step or (lambda _: None)
     timings: dict[str, float] = {}
+    skipped: dict[int, str] = {}
     t0 = time.perf_counter()
-    processed = {line: preprocess(b, cfg.gpr) for line, b in sorted(bscans.items())}
+    processed = {}
+    for line, b in sorted(bscans.items()):
+        try:
+            processed[line] = preprocess(b, cfg.gpr)
+        except InterpretationError as exc:
+            skipped[line] = str(exc)
+    if not processed:
+        raise InterpretationError("no line of the survey could be interpreted: "
+                                  + "; ".join(f"line {k}: {why}" for k, why in skipped.items()))
     timings["preprocess"] = time.perf_counter() - t0
     step("preprocessed")
 
@@ -194,8 +207,16 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     t0 = time.perf_counter()
     interpreted = []
     for line, b in processed.items():
-        interpreted.append(interpret_line(line, b, cfg, velocity, hints))
+        try:
+            interpreted.append(interpret_line(line, b, cfg, velocity, hints))
+        except InterpretationError as exc:
+            skipped[line] = str(exc)
         step(f"line {line}")
+    if not interpreted:
+        raise InterpretationError("no line of the survey could be interpreted: "
+                                  + "; ".join(f"line {k}: {why}" for k, why in sorted(skipped.items())))
+    for line, why in sorted(skipped.items()):
+        log.warning("line %d left out of the survey: %s", line, why)
     lines = tuple(interpreted)
     # Each line was interpreted AT the survey's velocity, so its section would say "given"; the truth is
     # how the survey found it (all lines' hyperbolas, or the configured eps_r).
@@ -211,4 +232,4 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     timings |= completion_timings
     timings["reconstruct"] = time.perf_counter() - t0
     step("completion")
-    return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings)
+    return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings, dict(sorted(skipped.items())))

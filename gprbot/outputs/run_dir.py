@@ -140,6 +140,7 @@ def write_survey_outputs(
         "velocity_m_per_ns": result.velocity_m_per_ns,
         "velocity_estimated": result.velocity_estimated,
         "lines": len(result.lines),
+        "skipped_lines": {str(k): why for k, why in result.skipped_lines.items()},
         "pipes_found": len(recon.pipes),
         "rebars_found": sum(len(lr.section.rebars) for lr in result.lines),
         "sparse_points": len(result.sparse),

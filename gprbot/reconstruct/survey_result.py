@@ -33,3 +33,4 @@ class SurveyResult:
     sparse: NDArray[np.float64]
     reconstruction: Reconstruction
     timings_s: dict[str, float] = field(default_factory=dict)
+    skipped_lines: dict[int, str] = field(default_factory=dict)  # line → why it could not be interpreted

@@ -257,6 +257,8 @@ class SurveyRunner:
             run.state = "aborted" if run.abort_reason else "done"
             return
         result = await self._beating(self._reconstruct(run.bscans), beat)
+        for line, why in result.skipped_lines.items():
+            self.emit(f"line {line} left out of the results: {why}")
         await self._write_outputs(run, result, beat)
         run.pipes = len(result.reconstruction.pipes)
         run.state = "aborted" if run.abort_reason else "done"
