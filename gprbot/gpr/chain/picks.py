@@ -2,7 +2,7 @@
 
 Tracking starts at the apex with the curve the semblance scan liked best, picks the envelope's peak
 near the predicted time on each trace outwards (the same definition as time zero's). A flank ends after
-two traces without a clear pick, at an earlier event, or at the aperture.
+two traces (and 2 cm) without a clear pick, at an earlier event, or at the aperture.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ FloatArray = NDArray[np.float64]
 PICK_APERTURE_DEG = 60.0  # beyond, picks are mostly a neighbour's flank; (45° changed little on the FDTD dev half)
 MIN_PICK_SNR = 3.0
 MIN_PICK_RATIO = 0.06  # of the apex amplitude: weaker picks are another event or noise
-MAX_MISSES = 2
+MAX_MISSES = 2  # traces without a clear pick that end a flank, and at least GAP_M of the line
+GAP_M = 0.02  # (a finely sampled line's flank is not ended by a few millimetres of interference)
 MAX_EARLIER_PERIODS = 0.1
 
 
@@ -53,10 +54,11 @@ def pick_along(
     reach = depth_m * math.tan(math.radians(PICK_APERTURE_DEG)) + prep.dx_m
     out: dict[int, tuple[float, float]] = {}
     counts = []
+    max_misses = max(MAX_MISSES, math.ceil(GAP_M / prep.dx_m - 1e-9))
     for step in (-1, 1):
         misses, found, shift, last = 0, 0, 0.0, -math.inf
         col = cand.column
-        while 0 <= col < nx and misses < MAX_MISSES:
+        while 0 <= col < nx and misses < max_misses:
             if abs(col - cand.column) * prep.dx_m > reach or not math.isfinite(predicted_ns[col]):
                 break
             centre = (predicted_ns[col] + prep.t0_ns) / prep.dt_ns + shift
