@@ -287,7 +287,7 @@ def test_a_surveys_crossing_hint_puts_an_oblique_pipe_at_its_depth() -> None:
     assert all(abs(d.depth_m - 0.25) > 0.03 for d in square.pipes if abs(d.x_m - 1.0) < 0.05)
 
 
-def test_a_radius_the_curve_cannot_measure_is_the_surveys() -> None:
+def test_a_pipes_radius_is_the_surveys_where_it_has_one() -> None:
     b = _line([SyntheticTarget(0.8, 0.2, 0.004, 1.0)], noise=0.1)  # a thin bar in noise: its radius is not measured
     own = interpret(b, GPR, V)
     assert own.pipes and not any(d.radius_supported for d in own.pipes)

@@ -91,8 +91,14 @@ def across(d: ClassifiedDetection, v: float) -> ClassifiedDetection:
 
 
 def holding(d: ClassifiedDetection, radius: float | None) -> ClassifiedDetection:
-    """A pipe whose own curve does not measure its radius, given the radius the survey's lines agree on."""
-    if d.kind != "pipe" or d.radius_supported or radius is None:
+    """A pipe given the radius the survey's lines agree on, where they have one.
+
+    It is preferred even to a radius the line's own fit calls supported: one line's fit can be confidently
+    wrong (a simulated oblique crossing: 14 cm, "supported", for a 2.7 cm pipe); the held radius is the median of
+    the fits on every line that saw the pipe. Simulated surveys and the FDTD dev half: recall up, the
+    diameters no worse.
+    """
+    if d.kind != "pipe" or radius is None:
         return d
     return replace(d, depth_m=d.fit.top_m + radius, radius_m=radius, radius_sigma_m=0.3 * radius)
 
@@ -151,7 +157,7 @@ def interpret(
 
     `hint_at(x)` is what a survey's other lines say of a pipe whose apex lies at along-track x. An oblique
     pipe's hyperbola along the line is the right-angle one stretched by 1/sin: it is fitted at v/sin and
-    its depth and radius are the fit's times sin. A radius its own curve does not measure is the survey's.
+    its depth and radius are the fit's times sin. A pipe's radius is the survey's where it has one.
     """
     notes: list[str] = []
     prep = prepare(bscan, gpr)
