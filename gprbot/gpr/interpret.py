@@ -33,6 +33,7 @@ from gprbot.gpr.velocity import (
     CrossingHint,
     VelocityEstimate,
     estimate_velocity,
+    nearest_hint,
 )
 from gprbot.gpr.wavelet import ricker
 
@@ -44,7 +45,6 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 _APEX_TRACES = 3  # traces either side of the apex stacked for the inner-echo analysis
 _MIN_INNER_RATIO = -3.0  # inner-bottom / top echo of an air-filled pipe: about −0.8 to −2
-_HINT_RADIUS_M = 0.06  # a crossing hint applies to a hyperbola whose apex lies this close
 
 
 def _wavelet_response(line: LineData) -> tuple[FloatArray, FloatArray]:
@@ -157,11 +157,8 @@ def _drop_rebar_rows(found: list[tuple[Detection, CylinderFit]]) -> list[tuple[D
 def _crossing_prior(bscan: BScan, h: HyperbolaPicks, hints: Sequence[CrossingHint]) -> CrossingHint:
     """Prior on a hyperbola's crossing angle: the nearest crossing hint, else "about at right angles"."""
     xy = bscan.position_at(h.point_model[0])[:2]
-    near = [(math.hypot(c.xy[0] - xy[0], c.xy[1] - xy[1]), k) for k, c in enumerate(hints)]
-    close = [n for n in near if n[0] < _HINT_RADIUS_M]
-    if not close:
-        return CrossingHint((float(xy[0]), float(xy[1])), 1.0, DEFAULT_SIN_STD)
-    return hints[min(close)[1]]
+    hint = nearest_hint(hints, xy)
+    return hint if hint is not None else CrossingHint((float(xy[0]), float(xy[1])), 1.0, DEFAULT_SIN_STD)
 
 
 def detect_pipes(

@@ -62,6 +62,16 @@ class CrossingHint:
     radius_m: float | None = None  # the pipe's radius from all lines that saw it (`chain_radii`)
 
 
+HINT_RADIUS_M = 0.06  # a crossing hint applies to a hyperbola whose apex lies this close
+
+
+def nearest_hint(hints: Sequence[CrossingHint], xy: NDArray[np.float64]) -> CrossingHint | None:
+    """The hint nearest the site point xy within HINT_RADIUS_M (the first of equally near ones), else None."""
+    near = [(math.hypot(h.xy[0] - xy[0], h.xy[1] - xy[1]), k) for k, h in enumerate(hints)]
+    close = [n for n in near if n[0] < HINT_RADIUS_M]
+    return hints[min(close)[1]] if close else None
+
+
 @dataclass(frozen=True)
 class VelocityEstimate:
     """Survey-wide wave velocity v (m/ns), its standard deviation, how many hyperbolas gave it, crossings."""

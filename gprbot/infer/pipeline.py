@@ -27,7 +27,7 @@ from gprbot.gpr.chain.velocity import weighted_median
 from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint
+from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint, nearest_hint
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.migrationnet import MigrationNetInterpreter
 from gprbot.infer.refine import FitRefinerModel, refined_reconstruction
@@ -37,7 +37,6 @@ from gprbot.reconstruct.register import SliceCloud, register_slice, resample_clo
 from gprbot.reconstruct.survey_result import LineResult, SurveyResult
 
 log = logging.getLogger(__name__)
-HINT_RADIUS_M = 0.06  # a hint applies to an apex this close (as in the classical interpreter's hint matching)
 
 
 def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool, tuple[CrossingHint, ...]]:
@@ -114,15 +113,10 @@ def line_section(
 
 def survey_hints(processed: BScan, hints: Sequence[CrossingHint]) -> Callable[[float], SurveyHint]:
     """What the survey's linked apices say of a pipe whose apex lies at along-track x on this line: the nearest
-    hint within HINT_RADIUS_M (its crossing angle and held radius), else nothing (at right angles, own radius)."""
+    hint (`velocity.nearest_hint`: its crossing angle and held radius), else nothing (at right angles, own radius)."""
     def hint_at(x_m: float) -> SurveyHint:
-        xy = processed.position_at(np.array([x_m]))[0, :2]
-        near = [(float(np.hypot(h.xy[0] - xy[0], h.xy[1] - xy[1])), k) for k, h in enumerate(hints)]
-        close = [n for n in near if n[0] < HINT_RADIUS_M]
-        if not close:
-            return SurveyHint()
-        nearest = hints[min(close)[1]]
-        return SurveyHint(nearest.sin_cross, nearest.radius_m)
+        nearest = nearest_hint(hints, processed.position_at(np.array([x_m]))[0, :2])
+        return SurveyHint() if nearest is None else SurveyHint(nearest.sin_cross, nearest.radius_m)
     return hint_at
 
 
@@ -175,6 +169,12 @@ def survey_steps(n_lines: int) -> int:
     return n_lines + 3
 
 
+def _none_left(skipped: Mapping[int, str]) -> InterpretationError:
+    """The error of a survey none of whose lines could be interpreted, with each line's reason."""
+    return InterpretationError("no line of the survey could be interpreted: "
+                               + "; ".join(f"line {k}: {why}" for k, why in sorted(skipped.items())))
+
+
 def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.Generator,
                        on_step: Callable[[str], None] | None = None) -> SurveyResult:
     """Interpret every line of a survey and complete the registered slices into pipes.
@@ -194,8 +194,7 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
         except InterpretationError as exc:
             skipped[line] = str(exc)
     if not processed:
-        raise InterpretationError("no line of the survey could be interpreted: "
-                                  + "; ".join(f"line {k}: {why}" for k, why in skipped.items()))
+        raise _none_left(skipped)
     timings["preprocess"] = time.perf_counter() - t0
     step("preprocessed")
 
@@ -213,8 +212,7 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
             skipped[line] = str(exc)
         step(f"line {line}")
     if not interpreted:
-        raise InterpretationError("no line of the survey could be interpreted: "
-                                  + "; ".join(f"line {k}: {why}" for k, why in sorted(skipped.items())))
+        raise _none_left(skipped)
     for line, why in sorted(skipped.items()):
         log.warning("line %d left out of the survey: %s", line, why)
     lines = tuple(interpreted)
