@@ -6,9 +6,9 @@ Rules (what a GPR analyst reads off a radargram):
 - the lower arms of two neighbours' crossing flanks (a V whose picks lie on their curves) are dropped;
 - an **echo** of another target is dropped: a reflector under a stronger one at the same x, arriving
   within a pipe's inner-echo delay (a PVC pipe's bottom, ringing) or at twice its time (a surface multiple);
-- **rebar**: four or more reflectors (three if thin) at one cover on one evenly spaced lattice (bars
-  may be missing, others at that cover may be pipes) — a mesh's row; everything else that passes is a
-  **pipe**;
+- **rebar**: four or more reflectors (three if thin; two if thin, shallow and a mesh's spacing apart) at
+  one cover on one evenly spaced lattice (bars may be missing, others at that cover may be pipes) — a
+  mesh's row; everything else that passes is a **pipe**;
 - the reflection's sign against the direct wave says whether the target is slower (metal, water,
   wet) or faster (air-filled, a void) than the host;
 - a **radius** is reported as fitted only where the fit measures it (`reported_radius`).
@@ -204,7 +204,8 @@ def _rebar_rows(fits: Sequence[CylinderFit]) -> set[int]:
     """Indices of fits that form rebar rows: evenly spaced reflectors at one cover (a bar may be missing).
 
     Four or more make a row whatever their fitted radius (pipes are not laid in regular rows, and on
-    one line radius and velocity trade off); three only when they are thin.
+    one line radius and velocity trade off); three only when they are thin; two only when thin, within
+    PAIR_MAX_COVER_M of the surface and at most PAIR_MAX_SPACING_M apart.
     """
     bars: set[int] = set()
     order = sorted(range(len(fits)), key=lambda i: fits[i].top_m)
