@@ -209,6 +209,7 @@ class FusionConfig:
     vo_covariance_scale: float = 1.0
     vo_translation_floor_m: float = 5.0e-5
     vo_rotation_floor_rad: float = 5.0e-5
+    vo_map_slots: int = 20  # map keyframes the filter keeps a pose clone for (fusion.vo_map; 0: none)
     gate_probability: float = 0.999  # χ² gate on each update's normalised innovation
     max_consecutive_rejections: int = 25  # then accept anyway: a filter must not shut a sensor out for good
     init_duration_s: float = 0.5  # at rest: mean accel gives roll/pitch (and mean gyro the gyro bias)
@@ -233,6 +234,9 @@ class FusionConfig:
             )
         if self.output_rate_hz <= 0.0:
             raise ConfigError(f"fusion.output_rate_hz: expected a positive rate, got {self.output_rate_hz}")
+        if not (isinstance(self.vo_map_slots, int) and self.vo_map_slots <= 40):
+            # each slot is six more filter states; 40 keeps a covariance step under ~0.1 ms
+            raise ConfigError(f"fusion.vo_map_slots: expected a whole number 0-40, got {self.vo_map_slots!r}")
 
 
 @dataclass(frozen=True)

@@ -114,6 +114,9 @@ class VoMeasurement:
     rotation rad as a right perturbation of `rotation`). `new_keyframe` says that the frame at t is
     the reference of the next measurements. status "keyframe": a new reference at t, no motion.
     status "lost": no usable motion at t (`reason` says why); motion restarts at the next keyframe.
+    Map keyframes (loop closure on floor seen before): `map_slot` ≥ 0 on a new keyframe stores it in
+    that slot of the map too; `revisit_slot` ≥ 0 on an "ok" measurement says t_ref is that slot's
+    keyframe, seen again now, not the current one.
     """
 
     t: float
@@ -125,6 +128,8 @@ class VoMeasurement:
     inliers: int = 0
     new_keyframe: bool = False
     reason: str = ""
+    map_slot: int = -1
+    revisit_slot: int = -1
 
 
 @dataclass(frozen=True)
@@ -145,6 +150,9 @@ class VoHealth:
     latency_ms_max: float
     cpu_s: float  # the VO thread's CPU time
     last_failure: str
+    map_keyframes: int = 0  # keyframes kept to be found again (fusion.vo_map)
+    revisit_attempts: int = 0
+    revisits: int = 0  # attempts that found their map keyframe again
 
 
 @dataclass(frozen=True)

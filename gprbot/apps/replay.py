@@ -147,9 +147,10 @@ def fuse_poses(messages: Iterable[Any], cfg: Config) -> list[Pose]:
                 continue
             if odometry is None:
                 from gprbot.fusion.vo import RgbdOdometry  # OpenCV: only when frames need it
+                from gprbot.fusion.vo_map import MapConfig
 
                 mount = CameraMount(cfg.mount.camera_position_m, cfg.mount.camera_pitch_down_deg)
-                odometry = RgbdOdometry(mount)
+                odometry = RgbdOdometry(mount, map_config=MapConfig(slots=cfg.fusion.vo_map_slots))
             for measurement in odometry.process(message):
                 poses.extend(fuser.push(measurement))
             continue

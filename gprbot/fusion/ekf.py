@@ -6,10 +6,12 @@ sensors' axes once); VO arrives as base_link motion (see fusion.vo).
 
 Nominal state: position p (m, odom), velocity v (m/s, odom), attitude R = R_odom_base, gyro bias b_g
 (rad/s, base_link), accel bias b_a (m/s², base_link), per-wheel radius error s (fraction: the true
-radius is r·(1 + s_i)), and a clone (p_c, R_c) of the pose at the current VO keyframe.
-Error state (24, the vector filterpy's KalmanFilter holds): δp, δv, δθ (R = R̂ Exp(δθ)), δb_g, δb_a,
-δs, δp_c, δθ_c. Propagation is the standard ESKF (Solà, "Quaternion kinematics for the error-state
-Kalman filter", 2017, §5); VO is a relative-pose measurement between the clone and now (stochastic
+radius is r·(1 + s_i)), a clone (p_c, R_c) of the pose at the current VO keyframe, and one clone per
+map keyframe slot (fusion.vo_map: floor seen before; `vo_map_slots` of them).
+Error state (24 + 6 per slot, held in a filterpy KalmanFilter; its predict and update are written out
+here, as the slots' part of them is copies and zeros): δp, δv, δθ (R = R̂ Exp(δθ)), δb_g, δb_a, δs,
+δp_c, δθ_c, then (δp, δθ) of each slot. Propagation is the standard ESKF (Solà, "Quaternion kinematics
+for the error-state Kalman filter", 2017, §5); VO is a relative-pose measurement between the clone and now (stochastic
 cloning, Roumeliotis & Burdick 2002); wheels measure the three rim speeds, 1st-order in δs, with
 their common mode (the rotation) projected out: see `update_wheels`.
 """
@@ -23,7 +25,16 @@ from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
 from gprbot.config import FusionConfig
-from gprbot.fusion.so3 import FloatArray, exp_so3, gravity_aligned, log_so3, orthonormalize, quat_to_matrix, skew
+from gprbot.fusion.so3 import (
+    FloatArray,
+    exp_so3,
+    exp_so3_many,
+    gravity_aligned,
+    log_so3,
+    orthonormalize,
+    quat_to_matrix,
+    skew,
+)
 from gprbot.messages import VoMeasurement
 from gprbot.motion.kinematics import KiwiKinematics, kiwi_matrix
 
@@ -87,12 +98,16 @@ class ErrorStateEkf:
         self.config = config
         self.kinematics = kinematics
         self._drive = kiwi_matrix(kinematics.base_radius_m)  # rows (cos θ_i, sin θ_i, −d)
-        self.kf = KalmanFilter(dim_x=DIM, dim_z=6)
+        self.slots = config.vo_map_slots
+        self.dim = DIM + 6 * self.slots
+        self.kf = KalmanFilter(dim_x=self.dim, dim_z=6)
         self.t = math.nan
         self.p, self.v = np.zeros(3), np.zeros(3)
         self.R = np.eye(3)
         self.gyro_bias, self.accel_bias, self.wheel_scale = np.zeros(3), np.zeros(3), np.zeros(3)
         self.clone_p, self.clone_R, self.clone_t = np.zeros(3), np.eye(3), math.nan
+        self.slot_p, self.slot_R = np.zeros((self.slots, 3)), np.tile(np.eye(3), (self.slots, 1, 1))
+        self.slot_t = np.full(self.slots, math.nan)
         self.gyro, self.accel = np.zeros(3), -GRAVITY.copy()
         self.floor_z = 0.0
         self._held_since = math.nan  # inputs are integrated (held) from here on
@@ -106,11 +121,9 @@ class ErrorStateEkf:
             np.full(3, c.gyro_bias_walk_rad_s2_sqrt_hz**2), np.full(3, c.accel_bias_walk_m_s3_sqrt_hz**2),
             np.full(3, c.wheel_scale_walk_per_sqrt_s**2), np.zeros(6),
         ])
-        self._clone_map = np.eye(DIM)
-        self._clone_map[CPOS] = np.eye(DIM)[POS]
-        self._clone_map[CATT] = np.eye(DIM)[ATT]
+        self._pose_rows = np.r_[POS, ATT]
         self._gate = {m: float(chi2.ppf(c.gate_probability, m)) for m in (3, 4, 6)}
-        self.rejected_in_a_row: dict[str, int] = {"wheels": 0, "vo": 0}
+        self.rejected_in_a_row: dict[str, int] = {"wheels": 0, "vo": 0, "revisit": 0}
 
     @property
     def initialized(self) -> bool:
@@ -133,11 +146,12 @@ class ErrorStateEkf:
         std = np.concatenate([
             np.full(3, c.initial_position_std_m), np.full(3, c.initial_velocity_std_m_s), [tilt, tilt, yaw_std],
             np.full(3, c.initial_gyro_bias_std_rad_s), np.full(3, c.initial_accel_bias_std_m_s2),
-            np.full(3, c.initial_wheel_scale_std), np.full(6, 1e-6),
+            np.full(3, c.initial_wheel_scale_std), np.full(6 + 6 * self.slots, 1e-6),
         ])
-        self.kf.x = np.zeros((DIM, 1))
+        self.kf.x = np.zeros((self.dim, 1))
         self.kf.P = np.diag(std**2)
         self.clone_t = math.nan
+        self.slot_t = np.full(self.slots, math.nan)
 
     def add_imu(self, t: float, gyro: FloatArray | None, accel: FloatArray | None) -> None:
         """Take an IMU reading at t (held until the next one); propagate once a step's worth has gathered."""
@@ -173,7 +187,7 @@ class ErrorStateEkf:
         F[VEL, BA] = -self.R * dt
         F[ATT, ATT] = step.T
         F[ATT, BG] = self._I3 * -dt
-        self.kf.predict(F=F, Q=np.diag(self._q_rate * dt))
+        self._predict(F, self._q_rate[:DIM] * dt)
         self.p = self.p + self.v * dt + 0.5 * acc * dt * dt
         self.v = self.v + acc * dt
         self.R = self.R @ step
@@ -215,14 +229,14 @@ class ErrorStateEkf:
             rim_true = np.einsum("ij,ij->i", self._drive, np.column_stack([then[:, :2], np.full(3, omega_z)]))
         gain = 1.0 - self.wheel_scale
         directions = np.column_stack([self._drive[:, :2], np.zeros(3)])
-        rims = np.zeros((3, DIM))
+        rims = np.zeros((3, self.dim))
         rims[:, VEL] = gain[:, None] * (directions @ self.R.T)
         rims[:, ATT] = gain[:, None] * (directions @ skew(v_body))
         rims[:, BG.start + 2] = gain * self.kinematics.base_radius_m
         rims[:, WS] = np.diag(-rim_true)
         rim = np.asarray(speeds, dtype=np.float64) * self.kinematics.wheel_radius_m
         rim_variance = np.diag(c.wheel_rim_speed_std_m_s**2 + (c.wheel_slip_std * rim) ** 2)
-        H = np.zeros((4, DIM))
+        H = np.zeros((4, self.dim))
         H[:2] = _DIFFERENTIAL @ rims
         H[2, VEL] = self.R[:, 2]
         H[2, ATT] = skew(v_body)[2]
@@ -236,35 +250,81 @@ class ErrorStateEkf:
         return self._update("wheels", (measured - predicted)[:rows], H[:rows], R_meas[:rows, :rows])
 
     def update_vo(self, m: VoMeasurement) -> str:
-        """Apply a keyframe-relative VO motion; 'applied', 'rejected' (gated) or 'skipped' (no clone at t_ref)."""
-        if math.isnan(self.clone_t) or abs(self.clone_t - m.t_ref) > 1e-6:
-            return "skipped"
+        """Apply a keyframe-relative VO motion; 'applied', 'rejected' (gated) or 'skipped' (no clone at t_ref).
+
+        A revisit (`m.revisit_slot` ≥ 0) is the motion from that map slot's keyframe instead.
+        """
+        slot = m.revisit_slot
+        if slot >= 0:
+            if slot >= self.slots or not abs(self.slot_t[slot] - m.t_ref) <= 1e-6:  # nan: never stored
+                return "skipped"
+            ref_p, ref_R, ref = self.slot_p[slot], self.slot_R[slot], DIM + 6 * slot
+        else:
+            if math.isnan(self.clone_t) or abs(self.clone_t - m.t_ref) > 1e-6:
+                return "skipped"
+            ref_p, ref_R, ref = self.clone_p, self.clone_R, CPOS.start
         c = self.config
-        rel_p = self.clone_R.T @ (self.p - self.clone_p)
-        rel_R = self.clone_R.T @ self.R
+        rel_p = ref_R.T @ (self.p - ref_p)
+        rel_R = ref_R.T @ self.R
         residual = np.concatenate([m.translation - rel_p, log_so3(rel_R.T @ quat_to_matrix(m.rotation))])
-        H = np.zeros((6, DIM))
-        H[:3, POS], H[:3, CPOS], H[:3, CATT] = self.clone_R.T, -self.clone_R.T, skew(rel_p)
-        H[3:, ATT], H[3:, CATT] = np.eye(3), -rel_R.T
+        H = np.zeros((6, self.dim))
+        H[:3, POS], H[:3, ref:ref + 3], H[:3, ref + 3:ref + 6] = ref_R.T, -ref_R.T, skew(rel_p)
+        H[3:, ATT], H[3:, ref + 3:ref + 6] = np.eye(3), -rel_R.T
         floor = np.concatenate([np.full(3, c.vo_translation_floor_m**2), np.full(3, c.vo_rotation_floor_rad**2)])
         R_meas = c.vo_covariance_scale * 0.5 * (m.covariance + m.covariance.T) + np.diag(floor)
-        return "applied" if self._update("vo", residual, H, R_meas) else "rejected"
+        return "applied" if self._update("revisit" if slot >= 0 else "vo", residual, H, R_meas) else "rejected"
 
     def clone(self) -> None:
         """Remember the current pose (and its correlations) as the reference of the next VO measurement."""
         self.clone_p, self.clone_R, self.clone_t = self.p.copy(), self.R.copy(), self.t
-        self.kf.P = self._clone_map @ self.kf.P @ self._clone_map.T
+        self._copy_pose_to(CPOS.start)
+
+    def store_in_slot(self, slot: int) -> bool:
+        """Remember the current pose (and its correlations) in a map slot; False if there is no such slot."""
+        if not 0 <= slot < self.slots:
+            return False
+        self.slot_p[slot], self.slot_R[slot], self.slot_t[slot] = self.p, self.R, self.t
+        self._copy_pose_to(DIM + 6 * slot)
+        return True
+
+    def _copy_pose_to(self, start: int) -> None:
+        """Overwrite error states start..start+6 with a copy of (δp, δθ) now: P ← M P Mᵀ, done as copies."""
+        P, src, dst = self.kf.P, self._pose_rows, slice(start, start + 6)
+        rows = P[src, :].copy()
+        P[dst, :] = rows
+        P[:, dst] = rows.T
+        P[dst, dst] = rows[:, src]
+
+    def _predict(self, F: FloatArray, q: FloatArray) -> None:
+        """P ← F P Fᵀ + Q with F and Q acting on the first DIM states only: the slots hold still, so only
+        their cross-covariance moves (the dense product over 24 + 6·slots states would cost ~25× more)."""
+        P = self.kf.P
+        cross = F @ P[:DIM, DIM:]
+        P[:DIM, :DIM] = F @ P[:DIM, :DIM] @ F.T + np.diag(q)
+        P[:DIM, DIM:], P[DIM:, :DIM] = cross, cross.T
 
     def _update(self, sensor: str, residual: FloatArray, H: FloatArray, R_meas: FloatArray) -> bool:
-        saved = self.kf.P.copy()
-        self.kf.update(residual.reshape(-1, 1), R=R_meas, H=H)
-        gate = self._gate[residual.size]
-        if self.kf.mahalanobis**2 > gate and self.rejected_in_a_row[sensor] < self.config.max_consecutive_rejections:
-            self.kf.P, self.kf.x = saved, np.zeros((DIM, 1))
+        """One Kalman update of the error state (zero before it); False if the χ² gate turned it away.
+
+        P ← P − K S Kᵀ with the optimal gain is filterpy's Joseph form (I − KH) P (I − KH)ᵀ + K R Kᵀ to
+        round-off, at O(n²·m) instead of O(n³) for the n = 24 + 6·slots states; H's zero columns (most of
+        them) are skipped.
+        """
+        P = self.kf.P
+        used = np.flatnonzero(np.any(H != 0.0, axis=0))
+        H_used = H[:, used]
+        PHt = P[:, used] @ H_used.T
+        S = H_used @ PHt[used] + R_meas
+        S_inv = np.linalg.inv(S)
+        if float(residual @ S_inv @ residual) > self._gate[residual.size] and \
+                self.rejected_in_a_row[sensor] < self.config.max_consecutive_rejections:
             self.rejected_in_a_row[sensor] += 1
             return False
         self.rejected_in_a_row[sensor] = 0
-        self._inject(self.kf.x.ravel())
+        K = PHt @ S_inv
+        P = P - K @ PHt.T
+        self.kf.P = 0.5 * (P + P.T)
+        self._inject(K @ residual)
         return True
 
     def _inject(self, dx: FloatArray) -> None:
@@ -276,4 +336,8 @@ class ErrorStateEkf:
         self.wheel_scale = self.wheel_scale + dx[WS]
         self.clone_p = self.clone_p + dx[CPOS]
         self.clone_R = self.clone_R @ exp_so3(dx[CATT])
-        self.kf.x = np.zeros((DIM, 1))
+        if self.slots:
+            slot_dx = dx[DIM:].reshape(self.slots, 6)
+            self.slot_p = self.slot_p + slot_dx[:, :3]
+            self.slot_R = self.slot_R @ exp_so3_many(slot_dx[:, 3:])
+        self.kf.x = np.zeros((self.dim, 1))

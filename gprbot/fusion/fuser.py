@@ -50,6 +50,8 @@ class FusionStats:
     vo_updates: int = 0
     vo_rejected: int = 0
     vo_skipped: int = 0
+    revisit_updates: int = 0  # of vo_*, motions from a map keyframe seen again
+    revisit_rejected: int = 0
     vo_lost: int = 0
     late_dropped: int = 0
     vo_late_dropped: int = 0  # of late_dropped, VO measurements (VO slower than the reorder window)
@@ -168,16 +170,23 @@ class PoseFuser:
             self.stats.vo_updates += result == "applied"
             self.stats.vo_rejected += result == "rejected"
             self.stats.vo_skipped += result == "skipped"
+            if m.revisit_slot >= 0:
+                self.stats.revisit_updates += result == "applied"
+                self.stats.revisit_rejected += result == "rejected"
         elif m.status == "lost":
             self.stats.vo_lost += 1
         if m.new_keyframe:
             self.ekf.clone()
+            if m.map_slot >= 0:
+                self.ekf.store_in_slot(m.map_slot)
 
     def _emit_ticks(self, t: float) -> list[Pose]:
         """The output poses due up to t (extrapolated from the state, which trails by < one IMU step)."""
-        ekf, out = self.ekf, []
+        ekf, out = self.ekf, list[Pose]()
+        if self._next_tick > t:
+            return out
         period = 1.0 / self.config.output_rate_hz
-        position_std, yaw_std = ekf.horizontal_std()
+        position_std, yaw_std = ekf.horizontal_std()  # an eigen-solve: once per due tick, not per message
         while self._next_tick <= t:
             position, attitude = ekf.extrapolate(self._next_tick)
             out.append(Pose(self._next_tick, position, matrix_to_quat(attitude), position_std, yaw_std))

@@ -27,6 +27,7 @@ from gprbot.messages import FusionSnapshot, decode, encode
 
 _EKF_ARRAYS = ("p", "v", "R", "gyro_bias", "accel_bias", "wheel_scale", "clone_p", "clone_R", "gyro", "accel",
                "_sum_gyro", "_sum_accel")
+_SLOT_ARRAYS = ("slot_p", "slot_R", "slot_t")  # map keyframe clones (absent from snapshots before them)
 _EKF_SCALARS = ("t", "clone_t", "floor_z", "_held_since")
 _FUSER_SCALARS = ("_newest", "_newest_gyro", "_newest_accel", "_newest_wheel", "_released", "_init_start",
                   "_next_tick")
@@ -35,7 +36,7 @@ _FUSER_SCALARS = ("_newest", "_newest_gyro", "_newest_accel", "_newest_wheel", "
 def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = ()) -> FusionSnapshot:
     """Everything `restore` needs to continue `fuser` exactly as it would have gone on."""
     ekf = fuser.ekf
-    arrays = {name: np.asarray(getattr(ekf, name), dtype=np.float64) for name in _EKF_ARRAYS}
+    arrays = {name: np.asarray(getattr(ekf, name), dtype=np.float64) for name in _EKF_ARRAYS + _SLOT_ARRAYS}
     arrays["kf_x"], arrays["kf_P"] = np.asarray(ekf.kf.x, dtype=np.float64), np.asarray(ekf.kf.P, dtype=np.float64)
     arrays["init_gyro"] = np.array(fuser._init_gyro, dtype=np.float64).reshape(-1, 3)
     arrays["init_accel"] = np.array(fuser._init_accel, dtype=np.float64).reshape(-1, 3)
@@ -60,6 +61,13 @@ def restore(snapshot: FusionSnapshot, config: FusionConfig, motors: MotorsConfig
             arrays = {name: np.array(data[name]) for name in data.files}
         for name in _EKF_ARRAYS:
             setattr(ekf, name, arrays[name])
+        dim = arrays["kf_P"].shape[0]
+        if dim != ekf.dim:
+            raise ValueError(f"its filter has {(dim - 24) // 6} map keyframe slots, the config "
+                             f"{ekf.slots} (fusion.vo_map_slots)")
+        for name in _SLOT_ARRAYS:
+            if name in arrays:
+                setattr(ekf, name, arrays[name])
         ekf.kf.x, ekf.kf.P = arrays["kf_x"], arrays["kf_P"]
         fuser._init_gyro = list(arrays["init_gyro"])
         fuser._init_accel = list(arrays["init_accel"])

@@ -29,6 +29,20 @@ def exp_so3(phi: FloatArray) -> FloatArray:
     return np.eye(3) + (math.sin(angle) / angle) * K + ((1.0 - math.cos(angle)) / angle_sq) * (K @ K)
 
 
+def exp_so3_many(phis: FloatArray) -> FloatArray:
+    """`exp_so3` of each row of an (n, 3) array at once: (n, 3, 3)."""
+    angle_sq = np.einsum("ij,ij->i", phis, phis)
+    K = np.zeros((len(phis), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -phis[:, 2], phis[:, 1], -phis[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = phis[:, 2], -phis[:, 1], phis[:, 0]
+    small = angle_sq < 1e-12
+    angle = np.sqrt(np.where(small, 1.0, angle_sq))
+    a = np.where(small, 1.0, np.sin(angle) / angle)
+    b = np.where(small, 0.5, (1.0 - np.cos(angle)) / np.where(small, 1.0, angle_sq))
+    out: FloatArray = np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+    return out
+
+
 def log_so3(R: FloatArray) -> FloatArray:
     """Rotation vector of a rotation matrix (angle below π)."""
     cos_angle = min(1.0, max(-1.0, 0.5 * (float(np.trace(R)) - 1.0)))

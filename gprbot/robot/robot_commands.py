@@ -172,7 +172,9 @@ def vo_status_line(vo: VoHealth, stats: FusionStats) -> str:
     line = (f"vo {vo.state} features {vo.features} tracked {vo.tracked} inlier_ratio {vo.inlier_ratio:.2f} "
             f"rate_hz {vo.rate_hz:.1f} latency_ms {vo.latency_ms_median:.0f} max {vo.latency_ms_max:.0f} "
             f"frames {vo.frames} dropped {vo.dropped} lost_frames {vo.lost_frames} "
-            f"fused {stats.vo_updates} rejected {stats.vo_rejected} late {stats.late_dropped}")
+            f"fused {stats.vo_updates} rejected {stats.vo_rejected} late {stats.late_dropped} "
+            f"map_keyframes {vo.map_keyframes} revisits {vo.revisits}/{vo.revisit_attempts} "
+            f"fused {stats.revisit_updates} rejected {stats.revisit_rejected}")
     if vo.state == "lost":
         line += f" (pose from IMU + wheels: {vo.last_failure})"
     return line

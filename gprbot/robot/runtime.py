@@ -97,7 +97,7 @@ class RobotRuntime:
         self.realsense: RealsenseDriver | None = None
         self.camera_frames = 0  # RGB-D frames received from the RealSense driver
         mount = CameraMount(cfg.mount.camera_position_m, cfg.mount.camera_pitch_down_deg)
-        self.vo = VoTask(mount, self._on_vo, clock=clock)
+        self.vo = VoTask(mount, self._on_vo, map_slots=cfg.fusion.vo_map_slots, clock=clock)
         self.supervisor: Supervisor | None = None
         self.estopped = False
         self._estop_stop: asyncio.Future[None] | None = None

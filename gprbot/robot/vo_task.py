@@ -23,6 +23,7 @@ import numpy as np
 
 from gprbot.fusion.vo import RgbdOdometry
 from gprbot.fusion.vo_geometry import VoConfig
+from gprbot.fusion.vo_map import MapConfig
 from gprbot.geometry import CameraMount
 from gprbot.messages import RawRgbdFrame, RgbdFrame, VoHealth, VoMeasurement
 
@@ -40,8 +41,9 @@ class VoTask:
     """RgbdOdometry behind a drop-oldest queue, in its own thread; measurements delivered on the loop."""
 
     def __init__(self, mount: CameraMount, deliver: Callable[[VoMeasurement], None], *, queue_size: int = 2,
-                 config: VoConfig | None = None, clock: Callable[[], float] = time.monotonic) -> None:
-        self.odometry = RgbdOdometry(mount, config)
+                 config: VoConfig | None = None, map_slots: int = MapConfig.slots,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.odometry = RgbdOdometry(mount, config, MapConfig(slots=map_slots))
         self._deliver, self._clock = deliver, clock
         self._queue: deque[RawRgbdFrame] = deque(maxlen=queue_size)
         self._ready = threading.Condition()
@@ -99,6 +101,7 @@ class VoTask:
             estimate.inliers / tracked if estimate is not None and tracked else 0.0, rate,
             float(np.median(latency)) * 1e3 if latency.size else 0.0,
             float(latency.max()) * 1e3 if latency.size else 0.0, self._cpu_s, vo.last_failure,
+            len(vo.map.entries), vo.map.attempts, vo.map.found,
         )
 
     def _run(self) -> None:
