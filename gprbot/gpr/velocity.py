@@ -27,7 +27,7 @@ from scipy.sparse import lil_matrix
 from gprbot.config import GprConfig, InterpretationConfig
 from gprbot.errors import InterpretationError
 from gprbot.gpr.bscan import BScan
-from gprbot.gpr.cylinder import MIN_SIN_CROSS, fit_cylinder
+from gprbot.gpr.cylinder import MIN_SIN_CROSS, PICK_STD_NS, CylinderFit, fit_cylinder
 from gprbot.gpr.hyperbola import (
     MAX_RADIUS_M,
     V_BOUNDS_M_PER_NS,
@@ -210,16 +210,67 @@ def pipe_chains(apices: Sequence[Sequence[tuple[FloatArray, float, float]]]) -> 
     return [[numbers[root((i, k))] for k in range(len(line))] for i, line in enumerate(apices)]
 
 
-def chain_radii(chains: Sequence[int], radii: Sequence[float]) -> dict[int, float]:
-    """Each pipe's radius: the median over the lines of its hyperbolas' fitted radii (≥ 3 lines).
+def chain_radii(chains: Sequence[int], members: Sequence[tuple[HyperbolaPicks, float]], v: float,
+                gpr: GprConfig) -> dict[int, float]:
+    """Each pipe's radius (≥ 3 lines): the one its hyperbolas on all lines fit best together.
 
     One hyperbola barely separates the radius from the depth of the centre (its curvature): on the
-    cluttered scene one 3 cm pipe's lines gave 1.3–4.0 cm. The pipe is the same on every line.
+    cluttered scene one 2.5 cm pipe's lines gave 0.8–3.2 cm alone, and their median flipped between
+    1.6 and 2.8 cm with sub-millimetre changes of the poses. The pipe is the same on every line, so the
+    lines' misfits add: `pooled_radius`.
     """
-    members: dict[int, list[float]] = {}
-    for chain, radius in zip(chains, radii, strict=True):
-        members.setdefault(chain, []).append(radius)
-    return {c: float(np.median(r)) for c, r in members.items() if len(r) >= _MIN_CHAIN_LINES}
+    grouped: dict[int, list[tuple[HyperbolaPicks, float]]] = {}
+    for chain, member in zip(chains, members, strict=True):
+        grouped.setdefault(chain, []).append(member)
+    return {c: pooled_radius(m, v, gpr) for c, m in grouped.items() if len(m) >= _MIN_CHAIN_LINES}
+
+
+_RADIUS_LADDER_M = np.concatenate([[0.0], np.geomspace(0.005, 0.9 * MAX_RADIUS_M, 10)])
+
+
+def pooled_radius(members: Sequence[tuple[HyperbolaPicks, float]], v: float, gpr: GprConfig) -> float:
+    """The held radius with the least summed robust misfit over one pipe's hyperbolas (each with its crossing
+    sine): a ladder of radii, then a parabola through the best one and its neighbours."""
+    free = [fit_cylinder(h.x_m, h.t_ns, v, gpr, sin_prior=(s, _sin_std(s))) for h, s in members]
+    scale = max(float(np.median([f.rms_ns for f in free])), PICK_STD_NS)  # the picks' own scatter
+    costs = sum((_held_misfits(h, s, f, v, gpr, scale) for (h, s), f in zip(members, free, strict=True)),
+                start=np.zeros(len(_RADIUS_LADDER_M)))
+    k = int(np.argmin(costs))
+    if k == 0 or k == len(costs) - 1:
+        return float(_RADIUS_LADDER_M[k])
+    (r0, r1, r2), (c0, c1, c2) = _RADIUS_LADDER_M[k - 1:k + 2], costs[k - 1:k + 2]
+    denominator = (r0 - r1) * (r0 - r2) * (r1 - r2)
+    a = (r2 * (c1 - c0) + r1 * (c0 - c2) + r0 * (c2 - c1)) / denominator
+    b = (r2 * r2 * (c0 - c1) + r1 * r1 * (c2 - c0) + r0 * r0 * (c1 - c2)) / denominator
+    vertex = -b / (2.0 * a) if a > 0.0 else r1
+    return float(np.clip(vertex, r0, r2))
+
+
+def _held_misfits(h: HyperbolaPicks, s: float, free: CylinderFit, v: float, gpr: GprConfig,
+                  scale: float) -> FloatArray:
+    """One hyperbola's robust (Cauchy) misfit with the radius held at each rung of the ladder.
+
+    The rungs are independent fits of (x0, dc, s), solved as one problem with a block-diagonal Jacobian
+    (a few calls of the travel-time model per step for all rungs, not one per rung), each started from
+    the free fit with the top of the pipe kept: the radius moves the centre, not the apex.
+    """
+    radii, n = _RADIUS_LADDER_M, len(h.x_m)
+    top = free.depth_m - free.radius_m
+
+    def residual(p: FloatArray) -> FloatArray:
+        q = p.reshape(-1, 3)
+        times = cylinder_times(h.x_m[None, :], q[:, :1], q[:, 1:2], radii[:, None], v, gpr, q[:, 2:3])
+        return np.column_stack([(times - h.t_ns) / scale, (q[:, 2] - s) / _sin_std(s)]).ravel()
+
+    start = np.column_stack([np.full(len(radii), free.x0_m), np.maximum(top + radii, 0.006),
+                             np.full(len(radii), free.sin_cross)])
+    lb = np.tile([free.x0_m - 0.2, 0.005, MIN_SIN_CROSS], len(radii))
+    ub = np.tile([free.x0_m + 0.2, 3.0, 1.0], len(radii))
+    sparsity = np.kron(np.eye(len(radii)), np.ones((n + 1, 3)))
+    sol = optimize.least_squares(residual, np.clip(start.ravel(), lb, ub), bounds=(lb, ub), loss="cauchy",
+                                 jac_sparsity=sparsity, x_scale="jac", max_nfev=30)
+    per_rung: FloatArray = np.log1p(sol.fun.reshape(len(radii), n + 1) ** 2).sum(axis=1)
+    return per_rung
 
 
 def lateral_shift(line: LineData, h: HyperbolaPicks, sin_cross: float, cot_sign: float) -> FloatArray:
@@ -283,10 +334,7 @@ def estimate_velocity(
         v0 = v
     # Radii as each line's own cylinder fit at the survey's velocity gives them, not the joint fit's
     # (which absorb what the shared velocity leaves): on the bend_tee elbow 2.1 against 3.3 cm for 3 cm.
-    radii = chain_radii([chains[k] for k in kept], [
-        fit_cylinder(h.x_m, h.t_ns, v, gpr, sin_prior=(s, _sin_std(s))).radius_m
-        for h, s in zip(hyperbolas, sines, strict=True)
-    ])
+    radii = chain_radii([chains[k] for k in kept], list(zip(hyperbolas, sines, strict=True)), v, gpr)
     apex_list = [a for line_apices in apices for a in line_apices]
     angles = [c for line_angles in linked for c in line_angles]
     crossings = tuple(
