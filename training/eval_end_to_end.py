@@ -257,6 +257,10 @@ def target_lines(result: dict[str, Any]) -> list[str]:
 def markdown(result: dict[str, Any], command: str) -> str:
     """The chains as markdown tables: overall, then median CD2 and pipe recall per case."""
     title, feeds = SOURCES[result["source"]]
+    if result.get("half") == "dev":  # the tuning half: say so (the test half is the report)
+        feeds = feeds.replace("the FDTD test half (validation/fdtd; the dev half is for tuning)",
+                              "the FDTD dev half (validation/fdtd; the half tuned on: report the test half, "
+                              "eval_end_to_end_fdtd.md)")
     cases = result["cases"]
     refused = result["refusals"]
     lines = [
@@ -323,6 +327,8 @@ def main() -> None:
         name = "eval_end_to_end_fdtd" if args.half == "test" else "eval_end_to_end_fdtd_dev"
         out = args.out or ROOT / "models" / name
     result = evaluate(surveys, args.source)
+    if args.source == "fdtd":
+        result["half"] = args.half
     out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
     text = markdown(result, command)
     out.with_suffix(".md").write_text(text)
