@@ -10,6 +10,7 @@ from filterpy.kalman import KalmanFilter
 
 from gprbot.config import FusionConfig, MotorsConfig
 from gprbot.errors import ConfigError, GprbotError
+from gprbot.fusion.baselines import vo_only
 from gprbot.fusion.ekf import DIM, ErrorStateEkf
 from gprbot.fusion.fuser import PoseFuser
 from gprbot.fusion.snapshot import restore, take_snapshot
@@ -139,3 +140,20 @@ def test_a_snapshot_keeps_the_map_slots_and_refuses_another_slot_count() -> None
 def test_the_slot_count_must_be_a_small_whole_number(slots: object) -> None:
     with pytest.raises(ConfigError, match=r"fusion\.vo_map_slots"):
         FusionConfig(vo_map_slots=slots)  # type: ignore[arg-type]
+
+
+def test_the_vo_only_baseline_chains_past_a_revisit_at_the_same_instant() -> None:
+    """A revisit at a frame whose motion is then emitted again by a tracking loss: one pose per instant."""
+    step = matrix_to_quat(np.eye(3))
+    cov = np.eye(6) * 1e-8
+    messages = [
+        VoMeasurement(0.0, 0.0, "keyframe", new_keyframe=True, map_slot=0),
+        VoMeasurement(0.5, 0.0, "ok", step, np.array([0.05, 0.0, 0.0]), cov, 100, True),
+        VoMeasurement(9.8, 0.0, "ok", step, np.array([0.0, 0.1, 0.0]), cov, 100, revisit_slot=0),
+        VoMeasurement(9.8, 0.5, "ok", step, np.array([0.05, 0.0, 0.0]), cov, 100, False),
+        VoMeasurement(9.9, 9.9, "keyframe", new_keyframe=True),
+    ]
+    poses = vo_only(messages, np.zeros(3), 0.0, 0.0)
+    times = [p.t for p in poses]
+    assert times == sorted(set(times))
+    assert poses[-2].position == pytest.approx([0.10, 0.0, 0.0])  # the chain's, not the revisit's

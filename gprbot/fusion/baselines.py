@@ -2,8 +2,9 @@
 
 Each starts from the same known start pose as the filter and uses its sensor the way a system with
 only that sensor would: wheel odometry integrates the nominal kiwi kinematics; VO chains its
-keyframe motions and, where it lost track, carries on at its last velocity (it has nothing else);
-IMU dead reckoning is a strapdown integration after the same at-rest initialisation as the filter.
+keyframe motions (not the map keyframes it finds again) and, where it lost track, carries on at its
+last velocity (it has nothing else); IMU dead reckoning is a strapdown integration after the same
+at-rest initialisation as the filter.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ def vo_only(measurements: Sequence[VoMeasurement], start: FloatArray, yaw: float
     velocity, rate = np.zeros(3), np.zeros(3)  # body frame, per second
     tracking = False
     for m in sorted(measurements, key=lambda m: m.t):
+        if m.revisit_slot >= 0:  # a map keyframe seen again: VO alone keeps no map to put it against
+            continue
         if m.status == "ok" and tracking and abs(m.t_ref - ref_t) < 1e-6:
             dR, dt = quat_to_matrix(m.rotation), max(m.t - m.t_ref, 1e-6)
             p, R = ref_p + ref_R @ m.translation, ref_R @ dR
