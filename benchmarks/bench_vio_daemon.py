@@ -69,6 +69,12 @@ def errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray,
     return ate, abs(float(yaw[-1]))
 
 
+def summary(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
+    """ATE RMS (cm), |yaw error| at the end and the yaw error's RMS over the survey (deg) of an estimator."""
+    ate, yaw = yaw_errors(poses, truth_t, truth)
+    return ate, abs(float(yaw[-1])), float(np.sqrt(np.mean(yaw**2)))
+
+
 def yaw_errors(poses: list[Pose], truth_t: np.ndarray, truth: np.ndarray,
                window: tuple[float, float] | None = None) -> tuple[float, np.ndarray]:
     """ATE RMS (cm, horizontal) and the signed yaw error (deg) at 10 Hz over the estimator's span (or `window`)."""
@@ -184,25 +190,27 @@ async def bench(lines: int, length_m: float, speed_m_s: float, save: str | None 
     p0 = np.array([x0, y0, 0.0])
     vo_msgs = [m for m in inputs if isinstance(m, VoMeasurement)]
     wheel_msgs = [m for m in inputs if isinstance(m, WheelSpeeds)]
-    table = {
-        "fused (IMU + VO + wheels), the daemon's": errors(daemon_poses, t_ts, tr),
-        "IMU + wheels (same filter, no VO)": errors(no_vo, t_ts, tr),
-        "VO only": errors(vo_only(vo_msgs, p0, yaw0, inputs[0].t), t_ts, tr),
-        "wheels only": errors(wheel_only(wheel_msgs, cfg.motors, p0, yaw0), t_ts, tr),
+    estimates = {
+        "fused (IMU + VO + wheels), the daemon's": daemon_poses,
+        "IMU + wheels (same filter, no VO)": no_vo,
+        "VO only": vo_only(vo_msgs, p0, yaw0, inputs[0].t),
+        "wheels only": wheel_only(wheel_msgs, cfg.motors, p0, yaw0),
     }
+    table = {name: summary(poses, t_ts, tr) for name, poses in estimates.items()}
     print(f"machine: {machine_description()}")
     print(f"survey: {lines} lines x {length_m} m at {speed_m_s} m/s, state {run.state}, driven in {wall:.1f} s; "
           f"texture-poor patch x 0.95-1.65 m, y -0.5-0.45 m; wheel slip on")
-    print(f"{'estimator':42s} {'ATE RMS cm':>10s} {'yaw drift deg':>14s}")
-    for name, (ate, yaw) in table.items():
-        print(f"{name:42s} {ate:10.3f} {yaw:14.3f}")
-    fused_ate, fused_yaw = table["fused (IMU + VO + wheels), the daemon's"]
-    base_ate, base_yaw = table["IMU + wheels (same filter, no VO)"]
-    print(f"fused / IMU+wheels: ATE {fused_ate / base_ate:.2f}, yaw drift {fused_yaw / max(base_yaw, 1e-9):.2f}")
-    # The yaw drift above is the error at the survey's end: one draw of the filter's wander (runs at one
-    # code ended 0.016-0.213 deg), so its size over the whole survey is printed beside it.
+    # The yaw drift is the error at the survey's end: one draw of each estimator's wander (the fused one's
+    # ended 0.016-0.244 deg over six runs at one code), so its RMS over the whole survey is printed beside it.
+    print(f"{'estimator':42s} {'ATE RMS cm':>10s} {'yaw drift deg':>14s} {'yaw RMS deg':>12s}")
+    for name, (ate, yaw, yaw_rms) in table.items():
+        print(f"{name:42s} {ate:10.3f} {yaw:14.3f} {yaw_rms:12.3f}")
+    fused_ate, fused_yaw, fused_rms = table["fused (IMU + VO + wheels), the daemon's"]
+    base_ate, base_yaw, base_rms = table["IMU + wheels (same filter, no VO)"]
+    print(f"fused / IMU+wheels: ATE {fused_ate / base_ate:.2f}, yaw drift {fused_yaw / max(base_yaw, 1e-9):.2f}, "
+          f"yaw RMS {fused_rms / max(base_rms, 1e-9):.2f}")
     _, fused_yaw_t = yaw_errors(daemon_poses, t_ts, tr)
-    print(f"fused yaw error over the survey (deg, 10 Hz): RMS {float(np.sqrt(np.mean(fused_yaw_t ** 2))):.3f}, "
+    print(f"fused yaw error over the survey (deg, 10 Hz): RMS {fused_rms:.3f}, "
           f"max |error| {float(np.max(np.abs(fused_yaw_t))):.3f}, at the end {abs(float(fused_yaw_t[-1])):.3f}")
     per_line = []
     for line, spans in sorted(run.windows.items()):
