@@ -13,8 +13,6 @@ It never guesses across a gap.
 
 from __future__ import annotations
 
-import dataclasses
-
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +25,7 @@ from gprbot.fusion.vo_geometry import (
     VoConfig,
     detect_keyframe,
     estimate_motion,
+    warped_toward,
 )
 from gprbot.fusion.vo_map import KeyframeMap, MapConfig
 from gprbot.geometry import CameraMount
@@ -111,8 +110,7 @@ class RgbdOdometry:
         if entry is None:
             return []
         rvec, tvec = self._base_to_camera(entry.rotation.T @ R, entry.rotation.T @ (p - entry.position))
-        projected, _ = cv2.projectPoints(entry.keyframe.points_3d, rvec, tvec, frame.intrinsics.matrix, None)
-        start = dataclasses.replace(entry.keyframe, tracked=projected.reshape(-1, 2).astype(np.float32))
+        start = warped_toward(entry.keyframe, rvec, tvec, frame.intrinsics)
         result = estimate_motion(start, frame.t, gray, frame.intrinsics, self.config, (rvec, tvec))
         if isinstance(result, str) or result.inliers < self.map.config.min_inliers:
             return []

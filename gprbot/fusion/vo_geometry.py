@@ -125,3 +125,34 @@ def estimate_motion(keyframe: Keyframe, t: float, gray: NDArray[np.uint8], k: Ca
     flow = float(np.median(np.linalg.norm(ahead[good] - keyframe.points_2d[good], axis=1)))
     return MotionEstimate(t, np.asarray(rvec, dtype=np.float64).ravel(), np.asarray(tvec, dtype=np.float64).ravel(),
                           covariance, int(idx.size), int(good.sum()), flow)
+
+
+def warped_toward(keyframe: Keyframe, rvec: FloatArray, tvec: FloatArray, k: CameraIntrinsics) -> Keyframe:
+    """The keyframe as it would look after the motion (rvec, tvec): its image warped by the floor plane's homography.
+
+    Tracking a keyframe from another line (0.1 m sideways) with LK's square windows read the floor's
+    perspective shear as yaw: +0.010° per 0.1 m on rendered pairs with the start positions exact (0.019°
+    with 21 px windows, 0.001° with 9 px). Warped first, the windows start on the patches as the frame
+    sees them: −0.0005 ± 0.0012°, and the yaw's scatter 0.020 → 0.007°. The plane is the keyframe's corners
+    (on the floor), refitted once without those off it by over 3 robust σ.
+    """
+    X = keyframe.points_3d
+    keep = np.ones(len(X), dtype=bool)
+    for _ in range(2):
+        centre = X[keep].mean(axis=0)
+        normal = np.linalg.svd(X[keep] - centre, full_matrices=False)[2][2]
+        off = np.abs((X - centre) @ normal)
+        keep = off <= max(3.0 * 1.4826 * float(np.median(off[keep])), 1e-4)
+    distance = float(normal @ centre)
+    if distance < 0.0:
+        normal, distance = -normal, -distance
+    K = k.matrix
+    R = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
+    H = K @ (R + np.outer(np.asarray(tvec, dtype=np.float64), normal) / max(distance, 1e-6)) @ np.linalg.inv(K)
+    height, width = keyframe.gray.shape
+    gray = np.asarray(cv2.warpPerspective(keyframe.gray, H, (width, height), flags=cv2.INTER_LINEAR,
+                                          borderMode=cv2.BORDER_CONSTANT, borderValue=0), dtype=np.uint8)
+    moved = cv2.perspectiveTransform(keyframe.points_2d.reshape(-1, 1, 2).astype(np.float64), H)
+    points = np.asarray(moved.reshape(-1, 2), dtype=np.float32)
+    return Keyframe(keyframe.t, gray, points, keyframe.points_3d, points.copy())
+
