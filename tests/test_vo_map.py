@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
@@ -16,6 +17,7 @@ from gprbot.fusion.fuser import PoseFuser
 from gprbot.fusion.snapshot import restore, take_snapshot
 from gprbot.fusion.so3 import log_so3, matrix_to_quat, quat_to_matrix, yaw_of
 from gprbot.fusion.vo import RgbdOdometry
+from gprbot.fusion.vo_geometry import VoConfig, detect_keyframe, warped_toward
 from gprbot.fusion.vo_map import MapConfig
 from gprbot.messages import ImuSample, VoMeasurement, decode, encode
 from gprbot.motion.kinematics import KiwiKinematics
@@ -157,3 +159,26 @@ def test_the_vo_only_baseline_chains_past_a_revisit_at_the_same_instant() -> Non
     times = [p.t for p in poses]
     assert times == sorted(set(times))
     assert poses[-2].position == pytest.approx([0.10, 0.0, 0.0])  # the chain's, not the revisit's
+
+
+def test_a_keyframe_warped_by_the_predicted_motion_looks_like_the_frame_from_the_next_line() -> None:
+    camera = FloorCamera(FloorSpec(size_px=(1536, 1536), smooth_patches_m=()), seed=4)
+    start = np.array([0.4, 0.0, 0.0])
+    first = camera.render(0.0, np.eye(3), start)
+    second = camera.render(9.0, np.eye(3), start + np.array([0.0, 0.1, 0.0]))  # the next line
+    vo = RgbdOdometry(camera.model.mount)
+    keyframe = detect_keyframe(0.0, first.color[:, :, 0], first.depth_m, first.intrinsics, VoConfig())
+    assert keyframe is not None
+    rvec, tvec = vo._base_to_camera(np.eye(3), np.array([0.0, 0.1, 0.0]))
+    warped = warped_toward(keyframe, rvec, tvec, first.intrinsics)
+    seen = warped.gray > 0  # the warp's border is black
+
+    def ncc(a: np.ndarray, b: np.ndarray) -> float:
+        a, b = a[seen].astype(float) - a[seen].mean(), b[seen].astype(float) - b[seen].mean()
+        return float(a @ b / np.sqrt((a @ a) * (b @ b)))
+
+    frame = second.color[:, :, 0]
+    assert seen.mean() > 0.5
+    assert ncc(warped.gray, frame) > 0.9 > ncc(keyframe.gray, frame)  # it looks like the frame; unwarped it does not
+    projected, _ = cv2.projectPoints(keyframe.points_3d, rvec, tvec, first.intrinsics.matrix, None)
+    assert np.abs(warped.points_2d - projected.reshape(-1, 2)).max() < 1.0  # the corners where the motion puts them
