@@ -70,7 +70,7 @@ class RgbdOdometry:
             out = [self._measurement(self.last_estimate, kf.t, False)] if self.last_estimate else []
             self._coast_to(frame.t)
             return out + self._start_keyframe(frame, gray, was_tracking=True)
-        self._track_to(result)
+        rotation, translation = self._track_to(result)
         c = self.config
         retire = (
             result.median_flow_px > c.keyframe_max_flow_px
@@ -80,19 +80,19 @@ class RgbdOdometry:
         if not retire:
             self.last_estimate = result
             return self._revisit(frame, gray)
-        rotation, translation = self._camera_to_base(np.concatenate([result.rvec, result.tvec]))
         dt = max(result.t - kf.t, 1e-6)
         self._velocity, self._rate = translation / dt, log_so3(rotation) / dt
         started = self._start_keyframe(frame, gray, was_tracking=True, announce=False)
         closing = self._measurement(result, kf.t, self.keyframe is not None)
         return [closing, *started, *self._revisit(frame, gray)]
 
-    def _track_to(self, estimate: MotionEstimate) -> None:
-        """VO's own pose at the frame: the keyframe's pose and the motion from it."""
+    def _track_to(self, estimate: MotionEstimate) -> tuple[FloatArray, FloatArray]:
+        """VO's own pose at the frame (the keyframe's pose and the motion from it); that base_link motion."""
         rotation, translation = self._camera_to_base(np.concatenate([estimate.rvec, estimate.tvec]))
         p, R = self._keyframe_pose
         self._pose, self._pose_t = (p + R @ translation, R @ rotation), estimate.t
         self.map.moved_to(self._pose[0])
+        return rotation, translation
 
     def _coast_to(self, t: float) -> None:
         """VO's own pose across frames it could not track: the last measured velocity, as VO has nothing else."""
@@ -109,17 +109,17 @@ class RgbdOdometry:
         entry = self.map.candidate(frame.t, p)
         if entry is None:
             return []
-        rvec, tvec = self._base_to_camera(entry.rotation.T @ R, entry.rotation.T @ (p - entry.position))
+        predicted_R, predicted_t = entry.rotation.T @ R, entry.rotation.T @ (p - entry.position)
+        rvec, tvec = self._base_to_camera(predicted_R, predicted_t)
         start = warped_toward(entry.keyframe, rvec, tvec, frame.intrinsics)
         result = estimate_motion(start, frame.t, gray, frame.intrinsics, self.config, (rvec, tvec))
         if isinstance(result, str) or result.inliers < self.map.config.min_inliers:
             return []
         rotation, translation = self._camera_to_base(np.concatenate([result.rvec, result.tvec]))
-        predicted_t = entry.rotation.T @ (p - entry.position)
         # A lock on the wrong patch of a repetitive floor lands far from where VO's own chain says it is
         # (which is good to a few cm between neighbouring lines); the filter's gate sees only its own view.
         off_m = float(np.linalg.norm(translation - predicted_t))
-        off_rad = float(np.linalg.norm(log_so3((entry.rotation.T @ R).T @ rotation)))
+        off_rad = float(np.linalg.norm(log_so3(predicted_R.T @ rotation)))
         if off_m > self.map.config.max_surprise_m or off_rad > self.map.config.max_surprise_rad:
             return []
         self.map.found += 1

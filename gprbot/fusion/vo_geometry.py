@@ -155,4 +155,3 @@ def warped_toward(keyframe: Keyframe, rvec: FloatArray, tvec: FloatArray, k: Cam
     moved = cv2.perspectiveTransform(keyframe.points_2d.reshape(-1, 1, 2).astype(np.float64), H)
     points = np.asarray(moved.reshape(-1, 2), dtype=np.float32)
     return Keyframe(keyframe.t, gray, points, keyframe.points_3d, points.copy())
-

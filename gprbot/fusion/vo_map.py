@@ -5,8 +5,9 @@ floor, about 0.2° over a 10-line survey, the same size as the issue's whole bud
 parallel lines 0.1 m apart while the camera sees a strip of floor ~0.45 m wide, so each line passes over
 floor that the previous one saw. The map keeps a few keyframes (image, corners with depth, and where VO
 itself put them) spaced along the path. When the robot is back within reach of one that is old enough
-(not the chain it is on), the frame is tracked against it, with its corners projected through the
-predicted motion as the tracker's start, and the motion from it becomes a measurement that the filter
+(not the chain it is on), the frame is tracked against it, its image first warped by the floor's
+homography for the predicted motion (`vo_geometry.warped_toward`), and the motion from it becomes a
+measurement that the filter
 applies against that keyframe's stored pose (a stochastic clone of its own: correlations are kept).
 Only VO's own chained pose is used for the choice and the prediction, so the stage stays pure.
 """
@@ -54,7 +55,6 @@ class KeyframeMap:
     def __init__(self, config: MapConfig) -> None:
         self.config = config
         self.entries: dict[int, MapKeyframe] = {}
-        self._last_stored: FloatArray | None = None
         self._path_since_stored = 0.0
         self._last_position: FloatArray | None = None
         self._last_attempt = -math.inf
@@ -72,7 +72,7 @@ class KeyframeMap:
         c = self.config
         if c.slots <= 0:
             return -1
-        if self._last_stored is not None and self._path_since_stored < c.travel_m:
+        if self.entries and self._path_since_stored < c.travel_m:
             return -1
         if any(self._distance(e, position) < c.spacing_m for e in self.entries.values()):
             return -1
@@ -82,7 +82,7 @@ class KeyframeMap:
         copy = dataclasses.replace(keyframe, tracked=keyframe.points_2d.copy())
         self.entries[slot] = MapKeyframe(slot, copy, np.asarray(position, dtype=np.float64).copy(),
                                          np.asarray(rotation, dtype=np.float64).copy())
-        self._last_stored, self._path_since_stored = self.entries[slot].position, 0.0
+        self._path_since_stored = 0.0
         return slot
 
     def candidate(self, t: float, position: FloatArray) -> MapKeyframe | None:

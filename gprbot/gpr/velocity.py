@@ -332,8 +332,8 @@ def estimate_velocity(
         sines = [s for s, g in zip(sines, good, strict=True) if g]
         kept = [k for k, g in zip(kept, good, strict=True) if g]
         v0 = v
-    # Radii as each line's own cylinder fit at the survey's velocity gives them, not the joint fit's
-    # (which absorb what the shared velocity leaves): on the bend_tee elbow 2.1 against 3.3 cm for 3 cm.
+    # Radii from cylinder fits at the survey's velocity (pooled over each pipe's lines), not the joint
+    # fit's (which absorb what the shared velocity leaves): on the bend_tee elbow 2.1 against 3.3 cm for 3 cm.
     radii = chain_radii([chains[k] for k in kept], list(zip(hyperbolas, sines, strict=True)), v, gpr)
     apex_list = [a for line_apices in apices for a in line_apices]
     angles = [c for line_angles in linked for c in line_angles]

@@ -17,6 +17,7 @@ from gprbot.fusion.baselines import imu_dead_reckoning, vo_only, wheel_only
 from gprbot.fusion.fuser import FusionStats, PoseFuser
 from gprbot.fusion.so3 import yaw_of
 from gprbot.fusion.vo import RgbdOdometry
+from gprbot.fusion.vo_map import MapConfig
 from gprbot.messages import ImuSample, Pose, VoMeasurement, WheelSpeeds
 from gprbot.motion.planner import SurveyPlan
 from gprbot.sim.camera import CameraModel, FloorCamera
@@ -45,12 +46,13 @@ class SimulatedRun:
 
 
 def simulate_run(name: str, truth: GroundTruth, seed: int = 0, camera: CameraModel | None = None,
-                 floor: FloorSpec | None = None, motors: MotorsConfig | None = None) -> SimulatedRun:
-    """Sample every sensor over the trajectory and run VO on the rendered frames."""
+                 floor: FloorSpec | None = None, motors: MotorsConfig | None = None,
+                 map_slots: int = MapConfig.slots) -> SimulatedRun:
+    """Sample every sensor over the trajectory and run VO (with `map_slots` map keyframes) on the rendered frames."""
     imu = simulate_imu(truth, seed=seed)
     wheels = simulate_encoders(truth, motors, seed=seed)
     cam = FloorCamera(floor, camera, seed=seed)
-    vo = RgbdOdometry(cam.model.mount)
+    vo = RgbdOdometry(cam.model.mount, map_config=MapConfig(slots=map_slots))
     out: list[tuple[float, VoMeasurement]] = []
     render_s = vo_s = 0.0
     frames = lost = 0
@@ -127,7 +129,7 @@ def fused_trajectory(
     and a rendered floor seen by the D435i, through visual odometry and the loosely coupled filter.
     """
     truth = survey_ground_truth(plan, (lever_arm[0], lever_arm[1]), seed=seed)
-    run = simulate_run("survey", truth, seed=seed, motors=motors)
+    run = simulate_run("survey", truth, seed=seed, motors=motors, map_slots=fusion.vo_map_slots)
     t0 = np.array([truth.t_start])
     start = truth.position(t0)[0]
     start_xyz = (float(start[0]), float(start[1]), float(start[2]))
