@@ -41,14 +41,15 @@ def _bend_point(h: float, D: FloatArray, d: FloatArray, v: FloatArray | float) -
     # steps left up to 80 ps near grazing; from this one two steps stay under a picosecond.
     sin_c = np.minimum(v / c, 0.999)
     a = np.maximum(D * hc / (v * d + hc), D - d * (sin_c / np.sqrt(1.0 - sin_c * sin_c)))
-    # Written for small arrays (the fits call this ~10⁵ times a line): no np.clip, no powers.
+    # Written for small arrays (the fits call this ~10⁵ times a line): no np.clip, no powers, and the
+    # products c·ra and v·rb made once each (the same values as writing them out twice).
     for _ in range(_NEWTON_STEPS):
         ra2 = h2 + a * a
         rest = D - a
         rb2 = d2 + rest * rest
-        ra, rb = np.sqrt(ra2), np.sqrt(rb2)
-        g = a / (c * ra) - rest / (v * rb)
-        gp = h2 / (c * ra * ra2) + d2 / (v * rb * rb2)
+        c_ra, v_rb = c * np.sqrt(ra2), v * np.sqrt(rb2)
+        g = a / c_ra - rest / v_rb
+        gp = h2 / (c_ra * ra2) + d2 / (v_rb * rb2)
         a = np.minimum(np.maximum(a - g / gp, 0.0), D)
     return np.asarray(a)
 
@@ -68,11 +69,23 @@ def cylinder_time(
     dist = np.maximum(np.hypot(ax, centre_depth), 1e-9)
     shrink = 1.0 - radius / dist
     px, pz = ax * shrink, centre_depth * shrink  # the point, from under the midpoint, and its depth
-    # Both legs in one call (stacked on a new first axis): half the numpy calls of two.
-    px, pz = np.broadcast_arrays(px, pz)
-    legs = leg_time(height, np.stack([px - 0.5 * offset, px + 0.5 * offset]), np.stack([pz, pz]),
-                    _stacked(v))
+    legs = leg_time(height, _two_legs(px, offset), _one_depth(pz), _stacked(v))
     return np.asarray(legs[0] + legs[1])
+
+
+def _two_legs(px: FloatArray, offset: float) -> FloatArray:
+    """The point's horizontal distances from the two antennas, on a new leading axis of two (Tx, Rx).
+
+    Both legs in one call: half the numpy calls of two. Adding -offset/2 is the same float operation as
+    subtracting offset/2, and one broadcast addition costs less than two and a stack.
+    """
+    half = 0.5 * offset
+    return np.asarray(px + np.array([-half, half]).reshape((2,) + (1,) * np.ndim(px)))
+
+
+def _one_depth(pz: FloatArray | float) -> FloatArray:
+    """The point's depth given a leading axis of one: both legs share it (broadcast, not stacked)."""
+    return np.asarray(pz, dtype=np.float64)[None]
 
 
 def _stacked(v: FloatArray | float) -> FloatArray | float:
@@ -93,9 +106,11 @@ def _leg_with_gradient(
     signed = np.asarray(horiz, dtype=np.float64)
     D = np.abs(signed)
     a = _bend_point(height, D, d, v) if height > 1e-6 else np.zeros_like(D)
-    rb = np.sqrt(d * d + (D - a) ** 2)
+    rest = D - a
+    rb = np.sqrt(d * d + rest * rest)
     t = np.sqrt(max(height, 0.0) ** 2 + a * a) / c + rb / v
-    return t, np.sign(signed) * (D - a) / (v * rb), d / (v * rb), -rb / (np.asarray(v) ** 2)
+    v_rb = v * rb
+    return t, np.sign(signed) * rest / v_rb, d / v_rb, -rb / (np.asarray(v) ** 2)
 
 
 def cylinder_time_gradient(
@@ -110,11 +125,10 @@ def cylinder_time_gradient(
     shrink = 1.0 - R / dist
     px, pz = ax * shrink, zc * shrink
     k = R / dist**3
-    dpx_dax, dpx_dzc, dpx_dR = 1.0 - k * zc * zc, k * ax * zc, -ax / dist
-    dpz_dax, dpz_dzc, dpz_dR = k * zc * ax, 1.0 - k * ax * ax, -zc / dist
-    px, pz = np.broadcast_arrays(px, pz)
-    t, dD, dd, dv = _leg_with_gradient(height, np.stack([px - 0.5 * offset, px + 0.5 * offset]), np.stack([pz, pz]),
-                                       _stacked(v))
+    k_zc = k * zc  # k·zc·zc and k·zc·ax both start from it (evaluated left to right)
+    dpx_dax, dpx_dzc, dpx_dR = 1.0 - k_zc * zc, k * ax * zc, -ax / dist
+    dpz_dax, dpz_dzc, dpz_dR = k_zc * ax, 1.0 - k * ax * ax, -zc / dist
+    t, dD, dd, dv = _leg_with_gradient(height, _two_legs(px, offset), _one_depth(pz), _stacked(v))
     dD, dd = dD[0] + dD[1], dd[0] + dd[1]  # the chain-rule factors below are the same for both legs
     return (t[0] + t[1], -(dD * dpx_dax + dd * dpz_dax), dD * dpx_dzc + dd * dpz_dzc, dD * dpx_dR + dd * dpz_dR,
             dv[0] + dv[1])
