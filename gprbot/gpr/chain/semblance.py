@@ -86,20 +86,33 @@ def semblance(
     """
     nx, ns = prep.data.shape
     cols = np.asarray(column, dtype=np.intp)[..., None] + lags.astype(np.intp)
-    inside = (cols >= 0) & (cols < nx)
-    w = np.arange(-half_window, half_window + 1)
-    s = np.rint(samples).astype(np.intp)[..., None] + w  # (..., nk, nw)
-    valid = aperture[..., None] & inside[..., None] & (s >= 0) & (s < ns)
-    # One flat index: a faster gather (of the single-precision copy: half the memory traffic).
-    flat = np.minimum(np.maximum(cols, 0), nx - 1)[..., None] * ns + np.minimum(np.maximum(s, 0), ns - 1)
-    vals = prep.data32.ravel()[flat]
-    vals *= valid
-    n = valid[..., 0].sum(axis=-1)
+    present = aperture & (cols >= 0) & (cols < nx)  # (..., nk)
+    centre = np.rint(samples).astype(np.intp)
+    first = centre - half_window
+    n = (present & (first >= 0) & (first < ns)).sum(axis=-1)  # lags whose window starts inside the record
+    # Absent lags read a zero trace and samples outside the record a zero margin, so one gather of the
+    # padded copy gives the values (zeros where absent) without a mask the size of the gather: a
+    # window wholly outside the record is moved, clamped, to lie wholly in the margin.
+    padded = _padded_traces(prep, half_window)
+    margin = 2 * half_window + 1
+    start = np.minimum(np.maximum(centre, -half_window - 1), ns + half_window) + margin
+    row = np.where(present, cols, nx)
+    flat = (row * padded.shape[1] + start)[..., None] + np.arange(-half_window, half_window + 1)
+    vals = padded.ravel()[flat]  # (..., nk, nw), of the single-precision copy: half the memory traffic
     stacked = (vals.sum(axis=-2) ** 2).sum(axis=-1)
     energy = (vals * vals).sum(axis=(-2, -1))
     # A curve seen on a handful of traces only (it leaves the record) is no evidence of its shape.
     support = np.minimum(1.0, n / MIN_SUPPORT)
     return np.asarray(support * stacked / np.maximum(np.maximum(n, 1) * energy, 1e-30))
+
+
+def _padded_traces(prep: PreparedBScan, half_window: int) -> NDArray[np.float32]:
+    """The single-precision traces with a zero margin of 2·half_window+1 samples each side and a zero trace after."""
+    nx, ns = prep.data.shape
+    margin = 2 * half_window + 1
+    padded = np.zeros((nx + 1, ns + 2 * margin), dtype=np.float32)
+    padded[:nx, margin : margin + ns] = prep.data32
+    return padded
 
 
 def aperture_mask(table: TravelTable, zc: FloatArray, dx_m: float, min_lags: int = 2) -> NDArray[np.bool_]:
