@@ -101,7 +101,7 @@ def semblance(
     # Each lag's window is one row of a sliding-window view: the gather copies whole windows, and no
     # index array the size of the gather is built. Single precision: half the memory traffic.
     windows = sliding_window_view(padded.ravel(), 2 * half_window + 1)
-    vals = np.take(windows, row * padded.shape[1] + start, axis=0)  # (..., nk, nw)
+    vals = windows[row * padded.shape[1] + start]  # (..., nk, nw); (np.take would copy the whole view)
     stacked = (_sum_over_lags(vals) ** 2).sum(axis=-1)
     energy = (vals * vals).sum(axis=(-2, -1))
     # A curve seen on a handful of traces only (it leaves the record) is no evidence of its shape.
