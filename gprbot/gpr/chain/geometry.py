@@ -66,9 +66,13 @@ def cylinder_time(
     (Fermat) point for offsets smaller than the depth.
     """
     ax = np.asarray(x_m, dtype=np.float64) - x0
-    dist = np.maximum(np.hypot(ax, centre_depth), 1e-9)
-    shrink = 1.0 - radius / dist
-    px, pz = ax * shrink, centre_depth * shrink  # the point, from under the midpoint, and its depth
+    if np.ndim(radius) == 0 and radius == 0.0:
+        # A point reflects at itself: the shrink below is exactly 1 (0 / dist), so skip it (and its hypot).
+        px, pz = ax, centre_depth
+    else:
+        dist = np.maximum(np.hypot(ax, centre_depth), 1e-9)
+        shrink = 1.0 - radius / dist
+        px, pz = ax * shrink, centre_depth * shrink  # the point, from under the midpoint, and its depth
     legs = leg_time(height, _two_legs(px, offset), _one_depth(pz), _stacked(v))
     return np.asarray(legs[0] + legs[1])
 
