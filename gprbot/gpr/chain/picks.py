@@ -49,34 +49,42 @@ def pick_along(
     prediction, so a rough first curve still leads along the flank.
     """
     nx, ns = prep.data.shape
-    search = max(2, round(search_periods * prep.period_ns / prep.dt_ns))
+    # The loop below runs for every trace of every flank: the line's constants and the predicted times
+    # are Python floats, read once (the same values and the same IEEE arithmetic as numpy's scalars).
+    dt, t0, dx, period = prep.dt_ns, prep.t0_ns, prep.dx_m, prep.period_ns
+    env = prep.envelope
+    predicted = np.asarray(predicted_ns, dtype=np.float64).tolist()
+    search = max(2, round(search_periods * period / dt))
     floor = max(MIN_PICK_SNR * prep.noise, MIN_PICK_RATIO * cand.amplitude)
-    reach = depth_m * math.tan(math.radians(PICK_APERTURE_DEG)) + prep.dx_m
+    reach = depth_m * math.tan(math.radians(PICK_APERTURE_DEG)) + dx
+    earlier_by = MAX_EARLIER_PERIODS * period
     out: dict[int, tuple[float, float]] = {}
     counts = []
-    max_misses = max(MAX_MISSES, math.ceil(GAP_M / prep.dx_m - 1e-9))
+    max_misses = max(MAX_MISSES, math.ceil(GAP_M / dx - 1e-9))
     for step in (-1, 1):
         misses, found, shift, last = 0, 0, 0.0, -math.inf
         col = cand.column
         while 0 <= col < nx and misses < max_misses:
-            if abs(col - cand.column) * prep.dx_m > reach or not math.isfinite(predicted_ns[col]):
+            if abs(col - cand.column) * dx > reach or not math.isfinite(predicted[col]):
                 break
-            centre = (predicted_ns[col] + prep.t0_ns) / prep.dt_ns + shift
-            lo, hi = max(0, round(centre) - search), min(ns, round(centre) + search + 1)
+            on_curve = (predicted[col] + t0) / dt  # the predicted sample
+            centre = round(on_curve + shift)
+            lo, hi = max(0, centre - search), min(ns, centre + search + 1)
             if hi - lo < 3:
                 break
-            e = prep.envelope[col, lo:hi]
-            k = int(np.argmax(e))
+            e = env[col, lo:hi]
+            k = int(e.argmax())
+            peak = float(e[k])
             s = lo + k + peak_offset(e, k)
             # Away from its apex a hyperbola only gets later: an earlier peak belongs to another event.
-            earlier = s * prep.dt_ns < last - MAX_EARLIER_PERIODS * prep.period_ns
-            if e[k] < floor or k in (0, hi - lo - 1) or earlier:
+            earlier = s * dt < last - earlier_by
+            if peak < floor or k in (0, hi - lo - 1) or earlier:
                 misses += 1
             else:
                 misses = 0
-                last = max(last, s * prep.dt_ns)
-                shift = s - (predicted_ns[col] + prep.t0_ns) / prep.dt_ns
-                out[col] = (s * prep.dt_ns - prep.t0_ns, float(e[k]))
+                last = max(last, s * dt)
+                shift = s - on_curve
+                out[col] = (s * dt - t0, peak)
                 found += col != cand.column
             col += step
         counts.append(found)
