@@ -87,11 +87,13 @@ def _pick_all(
     search_periods: float,
 ) -> list[Picks]:
     """Picks of every candidate along its curve (x0 = the candidate's column) at (v, radius, centre depth)."""
-    out = []
-    for cand, (v, r, zc, x0) in zip(cands, curves, strict=True):
-        predicted = cylinder_time(prep.x_m, x0, zc, r, v, prep.antenna_height_m, prep.tx_rx_offset_m)
-        out.append(pick_along(prep, cand, predicted, zc, search_periods))
-    return out
+    if not cands:
+        return []
+    # Every curve timed in one call (a row each): the times are elementwise, so the same floats as one call a curve.
+    v, r, zc, x0 = (np.array([c[k] for c in curves])[:, None] for k in range(4))
+    predicted = cylinder_time(prep.x_m[None, :], x0, zc, r, v, prep.antenna_height_m, prep.tx_rx_offset_m)
+    return [pick_along(prep, cand, times, curve[2], search_periods)
+            for cand, curve, times in zip(cands, curves, predicted, strict=True)]
 
 
 def _two_rounds(
