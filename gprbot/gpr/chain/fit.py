@@ -94,7 +94,6 @@ def fit_cylinders(
     x, t, mask = _padded(sel)
     v0 = np.broadcast_to(np.asarray(v, dtype=np.float64), (len(picks),))[usable]
     sigma_t = max(PICK_STD_PERIODS * prep.period_ns, 0.5 * prep.dt_ns)
-    h, off = prep.antenna_height_m, prep.tx_rx_offset_m
     n_par = 4 if free_velocity else 3
     # Several starting radii per hyperbola, all in one batch: a thin bar and a large pipe are separate
     # minima of the misfit, and a start near the wrong one stays there.
@@ -113,60 +112,124 @@ def fit_cylinders(
                   + ([np.full(len(x), V_BOUNDS[0])] if free_velocity else []), axis=1)
     hi = np.stack([x.max(axis=1) + 0.05, np.full(len(x), 5.0), np.full(len(x), R_MAX_M)]
                   + ([np.full(len(x), V_BOUNDS[1])] if free_velocity else []), axis=1)
+    model = _Model(prep.antenna_height_m, prep.tx_rx_offset_m, sigma_t, free_velocity)
+    p, r, J, c = _levenberg_marquardt(model, _Members(x, t, mask, v0, lo, hi), p)
+    best = c.reshape(n_starts, n_sel).argmin(axis=0) * n_sel + np.arange(n_sel)
+    sigmas = _sigmas(J[best], r[best], mask[best], n_par)
+    for k, i in enumerate(usable):
+        b, sig = int(best[k]), sigmas[k]
+        rb = r[b][mask[b]]
+        vel = float(p[b, 3]) if free_velocity else float(v0[b])
+        out[i] = CylinderFit(float(p[b, 0]), float(p[b, 1]), float(p[b, 2]), vel, float(sig[0]), float(sig[1]),
+                             float(sig[2]), float(sig[3]) if free_velocity else 0.0,
+                             math.sqrt(float(np.mean(rb * rb))) * sigma_t, int(mask[b].sum()))
+    return out
 
-    def residual_and_jacobian(q: FloatArray, rows: NDArray[np.intp]) -> tuple[FloatArray, FloatArray]:
-        xs, ts, ms = x[rows], t[rows], mask[rows]
-        vel = q[:, 3:4] if free_velocity else v0[rows, None]
+
+@dataclass(frozen=True)
+class _Model:
+    """What the residuals of every member share: the antenna, the picks' error, whether v is free."""
+
+    height: float
+    offset: float
+    sigma_t: float
+    free_velocity: bool
+
+    def residuals(self, q: FloatArray, m: _Members) -> tuple[FloatArray, FloatArray]:
+        """Weighted residuals (members, picks) of parameters q and their Jacobian (members, picks, params)."""
+        vel = q[:, 3:4] if self.free_velocity else m.v0[:, None]
         zc = q[:, 1:2] + q[:, 2:3]
-        model, g_x0, g_zc, g_r, g_v = cylinder_time_gradient(xs, q[:, 0:1], zc, q[:, 2:3], vel, h, off)
-        cols = [g_x0, g_zc, g_r + g_zc] + ([g_v] if free_velocity else [])
-        jac = np.where(ms[..., None], np.stack(cols, axis=-1) / sigma_t, 0.0)
-        return np.where(ms, (model - ts) / sigma_t, 0.0), jac
+        model, g_x0, g_zc, g_r, g_v = cylinder_time_gradient(m.x, q[:, 0:1], zc, q[:, 2:3], vel, self.height,
+                                                             self.offset)
+        cols = [g_x0, g_zc, g_r + g_zc] + ([g_v] if self.free_velocity else [])
+        jac = np.where(m.mask[..., None], np.stack(cols, axis=-1) / self.sigma_t, 0.0)
+        return np.where(m.mask, (model - m.t) / self.sigma_t, 0.0), jac
 
-    def cost(r: FloatArray) -> FloatArray:
-        return np.asarray(np.sum(2.0 * ROBUST_SCALE**2 * (np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2) - 1.0), axis=1))
 
-    lam = np.full(len(x), 1e-2)
-    r, J = residual_and_jacobian(p, rows)
-    c = cost(r)
-    active = rows
+@dataclass(frozen=True)
+class _Members:
+    """The picks (padded), fixed velocity and bounds of the members of a batch, one row each."""
+
+    x: FloatArray
+    t: FloatArray
+    mask: NDArray[np.bool_]
+    v0: FloatArray
+    lo: FloatArray
+    hi: FloatArray
+
+    def only(self, keep: NDArray[np.bool_]) -> _Members:
+        """The members where `keep` is true."""
+        return _Members(self.x[keep], self.t[keep], self.mask[keep], self.v0[keep], self.lo[keep], self.hi[keep])
+
+
+def _soft_l1(r: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each member's robust cost, and sqrt(1 + (r / scale)²) per residual (its IRLS weight is the inverse)."""
+    root = np.sqrt(1.0 + (r / ROBUST_SCALE) ** 2)
+    return np.asarray(np.sum(2.0 * ROBUST_SCALE**2 * (root - 1.0), axis=1)), root
+
+
+def _levenberg_marquardt(
+    model: _Model, members: _Members, p: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Bounded, damped Gauss-Newton on every member at once from p: (parameters, residuals, Jacobian, cost).
+
+    Only members still improving are iterated: a converged one is frozen (most of a batch converges in a
+    few steps, and the slowest used to set the work for all). The members still iterating are kept in
+    arrays of their own, written back when they finish: indexing the whole batch each step cost as much
+    as a step's arithmetic on a typical batch.
+    """
+    eye = np.eye(p.shape[1])
+    p = p.copy()  # p, r, J, c: every member's result; pa, ra, Ja, ca...: those of the active ones
+    r, J = model.residuals(p, members)
+    c, root = _soft_l1(r)
+    index = np.arange(len(p))  # of the active members
+    pa, ra, Ja, ca, root_a, la = p, r, J, c, root, np.full(len(p), 1e-2)
     for _ in range(ITERATIONS):
-        # Only members still improving are iterated: a converged one is frozen (most of a batch converges
-        # in a few steps, and the slowest used to set the work for all).
-        ra, Ja, pa, la = r[active], J[active], p[active], lam[active]
-        w = 1.0 / np.sqrt(1.0 + (ra / ROBUST_SCALE) ** 2)  # soft-L1 as iteratively reweighted least squares
+        w = 1.0 / root_a  # soft-L1 as iteratively reweighted least squares
         JtW = np.swapaxes(Ja * w[..., None], 1, 2)
         A = JtW @ Ja
         g = np.einsum("bpn,bn->bp", JtW, ra)
         diag = np.einsum("bpp->bp", A) + 1e-12
-        damped = A + la[:, None, None] * np.einsum("bp,pq->bpq", diag, np.eye(n_par))
+        damped = A + la[:, None, None] * np.einsum("bp,pq->bpq", diag, eye)
         step = -np.linalg.solve(damped, g[..., None])[..., 0]
-        trial = np.minimum(np.maximum(pa + step, lo[active]), hi[active])  # np.clip costs more on small arrays
-        r_trial, J_trial = residual_and_jacobian(trial, active)
-        c_trial = cost(r_trial)
-        better = c_trial < c[active]
-        gain = np.where(better, (c[active] - c_trial) / np.maximum(c[active], 1e-12), 0.0)
-        p[active] = np.where(better[:, None], trial, pa)
-        r[active] = np.where(better[:, None], r_trial, ra)
-        J[active] = np.where(better[:, None, None], J_trial, Ja)
-        c[active] = np.where(better, c_trial, c[active])
-        lam[active] = np.where(better, la * 0.3, la * 10.0)
+        trial = np.minimum(np.maximum(pa + step, members.lo), members.hi)  # np.clip costs more on small arrays
+        r_trial, J_trial = model.residuals(trial, members)
+        c_trial, root_trial = _soft_l1(r_trial)
+        better = c_trial < ca
+        gain = np.where(better, (ca - c_trial) / np.maximum(ca, 1e-12), 0.0)
+        row_better = better[:, None]
+        pa, ra = np.where(row_better, trial, pa), np.where(row_better, r_trial, ra)
+        root_a, Ja = np.where(row_better, root_trial, root_a), np.where(better[:, None, None], J_trial, Ja)
+        ca = np.where(better, c_trial, ca)
+        la = np.where(better, la * 0.3, la * 10.0)
         # Done: improving by less than a part in 10⁴, or given up.
-        active = active[~((better & (gain < 1e-4)) | (lam[active] > 1e6))]
-        if not len(active):
-            break
-    best = c.reshape(n_starts, n_sel).argmin(axis=0) * n_sel + np.arange(n_sel)
-    for k, i in enumerate(usable):
-        b = int(best[k])
-        m = mask[b]
-        jb, rb = J[b][m], r[b][m]
-        dof = max(1, int(m.sum()) - n_par)
-        scale = max(1.0, float(rb @ rb) / dof) * correlation_inflation(rb)
-        cov = np.linalg.pinv(jb.T @ jb) * scale
-        sig = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.all(np.isfinite(cov)) else np.full(n_par, np.inf)
-        vel = float(p[b, 3]) if free_velocity else float(v0[b])
-        out[i] = CylinderFit(float(p[b, 0]), float(p[b, 1]), float(p[b, 2]), vel, float(sig[0]), float(sig[1]),
-                             float(sig[2]), float(sig[3]) if free_velocity else 0.0,
-                             math.sqrt(float(np.mean(rb * rb))) * sigma_t, int(m.sum()))
-    return out
+        done = (better & (gain < 1e-4)) | (la > 1e6)
+        if done.any():
+            finished = index[done]
+            p[finished], r[finished], J[finished], c[finished] = pa[done], ra[done], Ja[done], ca[done]
+            keep = ~done
+            index = index[keep]
+            pa, ra, Ja, ca, root_a, la = pa[keep], ra[keep], Ja[keep], ca[keep], root_a[keep], la[keep]
+            members = members.only(keep)
+            if not len(index):
+                break
+    p[index], r[index], J[index], c[index] = pa, ra, Ja, ca
+    return p, r, J, c
 
+
+def _sigmas(J: FloatArray, r: FloatArray, mask: NDArray[np.bool_], n_par: int) -> FloatArray:
+    """1-sigma errors (members, params) of each member's parameters from its Jacobian and residuals at the fit.
+
+    The normal matrices are made one member at a time (their sums must not see the padding) and
+    pseudo-inverted in one batched call (the same LAPACK routine per matrix, so the same floats).
+    """
+    normals, scales = [], []
+    for jm, rm, m in zip(J, r, mask, strict=True):
+        jb, rb = jm[m], rm[m]
+        dof = max(1, int(m.sum()) - n_par)
+        scales.append(max(1.0, float(rb @ rb) / dof) * correlation_inflation(rb))
+        normals.append(jb.T @ jb)
+    cov = np.linalg.pinv(np.stack(normals)) * np.array(scales)[:, None, None]
+    finite = np.all(np.isfinite(cov), axis=(1, 2))
+    diag = np.sqrt(np.maximum(np.einsum("bpp->bp", cov), 0.0))
+    return np.where(finite[:, None], diag, np.inf)
