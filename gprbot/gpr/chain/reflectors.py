@@ -162,7 +162,12 @@ def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
     done = [(k, r, f) for k, (r, f) in enumerate(zip(reflectors, first, strict=True)) if f is not None]
     curves = [(vs[k], f.radius_m, f.depth_m, f.x0_m) for k, _, f in done]
     again = _pick_all(prep, [r.candidate for _, r, _ in done], curves, 0.3)
-    refits = fit_cylinders(prep, again, [vs[k] for k, _, _ in done], free_velocity=False)
+    if all(_same_picks(a, r.picks) for a, (_, r, _) in zip(again, done, strict=True)):
+        # The same picks at the same velocities make the same batch (same members, same padded length), and
+        # a fit is a function of its batch: the first fits stand.
+        refits: list[CylinderFit | None] = [f for _, _, f in done]
+    else:
+        refits = fit_cylinders(prep, again, [vs[k] for k, _, _ in done], free_velocity=False)
     for j, (k, r, f) in enumerate(done):
         refit = refits[j]
         if refit is not None and len(again[j].x_m) >= 0.8 * len(r.picks.x_m):
@@ -172,6 +177,11 @@ def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
         assert r.fit is not None
         out[k] = replace(r, coherence=curve_coherence(prep, r.picks, r.fit))
     return out
+
+
+def _same_picks(a: Picks, b: Picks) -> bool:
+    """Whether two sets of picks have the same traces and times."""
+    return np.array_equal(a.x_m, b.x_m) and np.array_equal(a.t_ns, b.t_ns)
 
 
 def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
