@@ -189,8 +189,9 @@ def _levenberg_marquardt(
         JtW = np.swapaxes(Ja * w[..., None], 1, 2)
         A = JtW @ Ja
         g = np.einsum("bpn,bn->bp", JtW, ra)
-        diag = np.einsum("bpp->bp", A) + 1e-12
-        damped = A + la[:, None, None] * np.einsum("bp,pq->bpq", diag, eye)
+        # The damping λ·diag on the diagonal (products by the identity's 1s and 0s, as an einsum would make).
+        diag = A.diagonal(axis1=1, axis2=2) + 1e-12
+        damped = A + (la[:, None] * diag)[:, :, None] * eye
         step = -np.linalg.solve(damped, g[..., None])[..., 0]
         trial = np.minimum(np.maximum(pa + step, members.lo), members.hi)  # np.clip costs more on small arrays
         r_trial, J_trial = model.residuals(trial, members)
