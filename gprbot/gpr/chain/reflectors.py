@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gprbot.gpr.chain.candidates import ApexCandidate
 from gprbot.gpr.chain.fit import CylinderFit, fit_cylinders
@@ -27,6 +28,8 @@ from gprbot.gpr.chain.semblance import (
     semblance,
     travel_table,
 )
+
+FloatArray = NDArray[np.float64]
 
 TRIAL_VELOCITIES = np.geomspace(0.04, 0.25, 24)
 TRIAL_RADII = np.array([0.0, 0.012, 0.03, 0.06])
@@ -168,14 +171,16 @@ def refit_each_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
         refits: list[CylinderFit | None] = [f for _, _, f in done]
     else:
         refits = fit_cylinders(prep, again, [vs[k] for k, _, _ in done], free_velocity=False)
-    for j, (k, r, f) in enumerate(done):
+    kept = []
+    for j, (_, r, f) in enumerate(done):
         refit = refits[j]
         if refit is not None and len(again[j].x_m) >= 0.8 * len(r.picks.x_m):
-            r = replace(r, picks=again[j], fit=refit)
+            kept.append((again[j], refit))
         else:
-            r = replace(r, fit=f)
-        assert r.fit is not None
-        out[k] = replace(r, coherence=curve_coherence(prep, r.picks, r.fit))
+            kept.append((r.picks, f))
+    coherences = curve_coherences(prep, [p for p, _ in kept], [f for _, f in kept])
+    for (k, r, _), (picks, fit), coherence in zip(done, kept, coherences, strict=True):
+        out[k] = replace(r, picks=picks, fit=fit, coherence=coherence)
     return out
 
 
@@ -200,11 +205,25 @@ def refit_at_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector],
 
 def curve_coherence(prep: PreparedBScan, picks: Picks, fit: CylinderFit) -> float:
     """Semblance of the traces along the fitted curve, over the picked columns, in a ±quarter-period window."""
-    if len(picks.x_m) < 2:
-        return 0.0
-    cols = np.round((picks.x_m - prep.x_m[0]) / prep.dx_m).astype(np.intp)
-    times = cylinder_time(prep.x_m[cols], fit.x0_m, fit.depth_m, fit.radius_m, fit.v, prep.antenna_height_m,
-                          prep.tx_rx_offset_m)
+    return curve_coherences(prep, [picks], [fit])[0]
+
+
+def curve_coherences(prep: PreparedBScan, picks: Sequence[Picks], fits: Sequence[CylinderFit]) -> list[float]:
+    """`curve_coherence` of each (picks, fit): every fitted curve timed in one call (a row each, padded)."""
+    cols = [np.round((p.x_m - prep.x_m[0]) / prep.dx_m).astype(np.intp) for p in picks]
+    if not cols:
+        return []
+    width = max(1, max(len(c) for c in cols))
+    at = np.zeros((len(cols), width), dtype=np.intp)  # the padding times column 0, unused
+    for row, c in zip(at, cols, strict=True):
+        row[: len(c)] = c
+    x0, depth, radius, v = (np.array([[getattr(f, k)] for f in fits]) for k in ("x0_m", "depth_m", "radius_m", "v"))
+    times = cylinder_time(prep.x_m[at], x0, depth, radius, v, prep.antenna_height_m, prep.tx_rx_offset_m)
+    return [_coherence_along(prep, c, t[: len(c)]) if len(c) >= 2 else 0.0 for c, t in zip(cols, times, strict=True)]
+
+
+def _coherence_along(prep: PreparedBScan, cols: NDArray[np.intp], times: FloatArray) -> float:
+    """Semblance of the traces `cols` along the two-way `times`, in a ±quarter-period window."""
     half = max(1, round(0.25 * prep.period_ns / prep.dt_ns))
     s = np.rint((times + prep.t0_ns) / prep.dt_ns).astype(np.intp)[:, None] + np.arange(-half, half + 1)
     ns = prep.data.shape[1]
