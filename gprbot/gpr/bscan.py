@@ -123,8 +123,31 @@ def grid_spacing_m(along_m: FloatArray) -> float:
     return float(np.clip(mean_step, GRID_SPACING_MIN_M, GRID_SPACING_MAX_M))
 
 
+def binned_sums(rows: NDArray[np.floating], index: NDArray[np.intp], n_bins: int) -> FloatArray:
+    """Sums (n_bins, ...) in double precision of the rows in each bin (`index`: each row's bin): np.add.at's floats.
+
+    np.add.at adds row after row into its bin, unbuffered and slowly; here step k adds the k-th row of
+    every bin at once (rows in their order within a bin), so each bin gets the same additions from zero
+    in the same order.
+    """
+    out = np.zeros((n_bins, *np.shape(rows)[1:]))
+    order = np.argsort(index, kind="stable")
+    in_order = index[order]
+    starts = np.flatnonzero(np.r_[True, in_order[1:] != in_order[:-1]])
+    rank = np.arange(len(index)) - np.repeat(starts, np.diff(np.r_[starts, len(index)]))  # place in its bin
+    for k in range(int(rank.max(initial=-1)) + 1):
+        rows_k = order[rank == k]
+        out[index[rows_k]] += rows[rows_k]
+    return out
+
+
 def check_bscan(bscan: BScan) -> None:
     """Raise InterpretationError if a B-scan cannot be interpreted (empty, too short, non-finite)."""
+    checked_along_track(bscan)
+
+
+def checked_along_track(bscan: BScan) -> FloatArray:
+    """`check_bscan`'s checks, and the traces' along-track coordinates they measured the line with."""
     data = np.asarray(bscan.data)
     if data.ndim != 2 or data.size == 0:
         raise InterpretationError(
@@ -147,9 +170,10 @@ def check_bscan(bscan: BScan) -> None:
         raise InterpretationError(f"B-scan sample interval dt_ns={bscan.dt_ns} must be a positive number")
     if not np.all(np.isfinite(data)):
         raise InterpretationError("B-scan contains NaN or infinite samples; check the acquisition")
-    length = float(np.ptp(bscan.along_track_m()))
-    if length <= 0.0:
+    along = bscan.along_track_m()
+    if float(np.ptp(along)) <= 0.0:
         raise InterpretationError("B-scan traces all lie at one position; the robot did not move along the line")
+    return along
 
 
 def bscan_from_dzt(dzt: Any, channel: int = 0) -> BScan:

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from gprbot.errors import InterpretationError
-from gprbot.gpr.bscan import BScan
+from gprbot.gpr.bscan import BScan, binned_sums
 from gprbot.gpr.traveltime import C_M_PER_NS, two_way_time
 
 Float32Array = NDArray[np.float32]
@@ -25,12 +25,15 @@ FloatArray = NDArray[np.float64]
 _IN_LINE = np.array([1.0, 0.0])
 
 
-def resample_uniform(bscan: BScan, spacing_m: float) -> tuple[Float32Array, FloatArray]:
+def resample_uniform(
+    bscan: BScan, spacing_m: float, *, along_m: FloatArray | None = None
+) -> tuple[Float32Array, FloatArray]:
     """Traces averaged into uniform along-track bins of `spacing_m`, empty bins interpolated.
 
     Returns (data (nx, n_samples), x_m (nx,)): x_m are the bin centres in along-track metres.
+    `along_m` is `bscan.along_track_m()` where the caller has it already (it smooths the track: not free).
     """
-    along = bscan.along_track_m()
+    along = bscan.along_track_m() if along_m is None else along_m
     length = float(along.max() - along.min())
     n_bins = math.floor(length / spacing_m) + 1
     if n_bins < 2:
@@ -39,8 +42,7 @@ def resample_uniform(bscan: BScan, spacing_m: float) -> tuple[Float32Array, Floa
         )
     index = np.clip(np.round((along - along.min()) / spacing_m).astype(np.intp), 0, n_bins - 1)
     data = np.asarray(bscan.data, dtype=np.float64)
-    sums = np.zeros((n_bins, data.shape[1]))
-    np.add.at(sums, index, data)
+    sums = binned_sums(data, index, n_bins)
     counts = np.bincount(index, minlength=n_bins)
     filled = counts > 0
     out = np.empty_like(sums)

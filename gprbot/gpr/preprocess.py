@@ -15,7 +15,7 @@ from scipy import ndimage
 
 from gprbot.config import GprConfig
 from gprbot.errors import InterpretationError
-from gprbot.gpr.bscan import BScan, check_bscan, grid_spacing_m
+from gprbot.gpr.bscan import BScan, binned_sums, check_bscan, grid_spacing_m
 from gprbot.gpr.traveltime import C_M_PER_NS
 
 Float32Array = NDArray[np.float32]
@@ -118,8 +118,7 @@ def remove_background(
     x = np.asarray(data, dtype=np.float32)
     along = np.arange(len(x), dtype=np.float64) * spacing_m if along_m is None else np.asarray(along_m)
     index, n_bins = _bin_traces(along, spacing_m)
-    sums = np.zeros((n_bins, x.shape[1]), dtype=np.float64)
-    np.add.at(sums, index, x)
+    sums = binned_sums(x, index, n_bins)
     bins = sums / np.bincount(index, minlength=n_bins)[:, None]
     window_bins = n_bins if window_m is None else max(3, round(window_m / spacing_m))
     if window_bins >= n_bins:

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from gprbot.config import GprConfig
-from gprbot.gpr.bscan import BScan, check_bscan
+from gprbot.gpr.bscan import BScan, checked_along_track
 from gprbot.gpr.chain.peaks import peak_offset
 from gprbot.gpr.migration import resample_uniform
 from gprbot.gpr.preprocess import BACKGROUND_WINDOW_M, DEWOW, dewow, remove_background, remove_gain
@@ -145,9 +145,9 @@ def without_direct_wave(data: FloatArray, direct_ns: float, dt_ns: float, period
 
 def prepare(bscan: BScan, gpr: GprConfig) -> PreparedBScan:
     """Uniform grid, dewow, time zero from the direct wave (unless known), median background removal."""
-    check_bscan(bscan)
+    along = checked_along_track(bscan)  # the gain changes the data only: the line's coordinates stand
     raw = remove_gain(bscan)
-    data, x = resample_uniform(raw, grid_spacing(raw.along_track_m(), gpr.centre_frequency_mhz))
+    data, x = resample_uniform(raw, grid_spacing(along, gpr.centre_frequency_mhz), along_m=along)
     q = decimation_factor(raw.dt_ns, gpr.centre_frequency_mhz)
     if q > 1:
         data = np.asarray(signal.resample_poly(data, 1, q, axis=1), dtype=np.float32)
