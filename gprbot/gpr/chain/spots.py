@@ -101,29 +101,30 @@ def _is_echo_of(spot: Spot, stronger: Sequence[tuple[float, float, float]], wave
     return False
 
 
-def _crossing(xl: float, zl: float, xr: float, zr: float) -> tuple[float, float]:
-    """Where two point diffractors' zero-offset curves cross: along-track x and the depth it migrates near."""
+def _crossing(xl: FloatArray, zl: FloatArray, xr: FloatArray, zr: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Where pairs of point diffractors' zero-offset curves cross: along-track x and the depth it migrates near.
+
+    Every pair is bisected at once (elementwise: each pair's steps are those it would take alone).
+    """
     lo, hi = xl, xr
     for _ in range(40):  # the difference of the two distances grows monotonically from xl to xr
         mid = 0.5 * (lo + hi)
-        if np.hypot(mid - xl, zl) < np.hypot(mid - xr, zr):
-            lo = mid
-        else:
-            hi = mid
+        nearer_left = np.hypot(mid - xl, zl) < np.hypot(mid - xr, zr)
+        lo, hi = np.where(nearer_left, mid, lo), np.where(nearer_left, hi, mid)
     x = 0.5 * (lo + hi)
-    return x, float(np.hypot(x - xl, zl))
+    return x, np.hypot(x - xl, zl)
 
 
 def _under_crossing_flanks(spot: Spot, stronger: Sequence[tuple[float, float, float]], wavelength: float) -> bool:
     """Whether a spot lies where two neighbours' flanks cross (a V, deeper than both tops, between them)."""
     left = [(x, top) for x, top, _ in stronger if x < spot.x_m and top < spot.top_m]
     right = [(x, top) for x, top, _ in stronger if x > spot.x_m and top < spot.top_m]
-    for xl, tl in left:
-        for xr, tr in right:
-            x, z = _crossing(xl, tl, xr, tr)
-            if abs(spot.x_m - x) <= ECHO_X_M and abs(spot.top_m - z) <= CROSSING_WAVELENGTHS * wavelength:
-                return True
-    return False
+    if not left or not right:
+        return False
+    (xl, tl), (xr, tr) = np.array(left).T, np.array(right).T
+    x, z = _crossing(xl[:, None], tl[:, None], xr[None, :], tr[None, :])  # (left, right): every pair
+    near = (np.abs(spot.x_m - x) <= ECHO_X_M) & (np.abs(spot.top_m - z) <= CROSSING_WAVELENGTHS * wavelength)
+    return bool(near.any())
 
 
 def spot_candidate(prep: PreparedBScan, spot: Spot, v: float) -> ApexCandidate | None:
