@@ -68,7 +68,7 @@ def cylinder_time(
     ax = np.asarray(x_m, dtype=np.float64) - x0
     if np.ndim(radius) == 0 and radius == 0.0:
         # A point reflects at itself: the shrink below is exactly 1 (0 / dist), so skip it (and its hypot).
-        px, pz = ax, centre_depth
+        px, pz = np.broadcast_arrays(ax, np.asarray(centre_depth, dtype=np.float64))
     else:
         dist = np.maximum(np.hypot(ax, centre_depth), 1e-9)
         shrink = 1.0 - radius / dist
