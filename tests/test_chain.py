@@ -295,19 +295,3 @@ def test_a_pipes_radius_is_the_surveys_where_it_has_one() -> None:
     for d in held.pipes:
         assert d.radius_m == 0.05 and d.depth_m == pytest.approx(d.fit.top_m + 0.05)
 
-
-def test_a_spot_stands_out_of_its_row_and_a_bright_column_is_no_spot() -> None:
-    from gprbot.gpr.chain.spots import find_spots
-
-    prep = prepare(_line([SyntheticTarget(1.0, 0.2, 0.02, 1.0)]), GPR)
-    z = np.arange(0.0, 1.0, 0.0025)
-    x = prep.x_m
-    env = np.full((len(z), len(x)), 0.01)
-    bumps = 100.0 * (1.0 + 0.3 * np.cos(2 * np.pi * x / 0.3))  # a bright near-surface zone, as on a field line
-    env += np.exp(-(((z - 0.07) / 0.01) ** 2))[:, None] * bumps[None, :]
-    # A deep focus at 1 % of the brightest: weak against the image, a hundred times its own row.
-    env += np.exp(-(((z - 0.5) / 0.02) ** 2))[:, None] * np.exp(-(((x - 1.0) / 0.02) ** 2))[None, :]
-    env[:, np.argmin(np.abs(x - 1.6))] += 2.0  # one glitched trace, bright at every depth
-    spots = find_spots(prep, env.astype(np.float32), z, V)
-    assert any(abs(s.x_m - 1.0) < 0.02 and abs(s.top_m - 0.5) < 0.02 for s in spots)
-    assert not any(abs(s.x_m - 1.6) < 0.03 for s in spots)

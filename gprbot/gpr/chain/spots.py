@@ -32,15 +32,13 @@ from gprbot.gpr.chain.reflectors import Reflector, fit_each, refit_each_at_veloc
 FloatArray = NDArray[np.float64]
 
 MIN_SPOT_FOCUS = 0.3  # of the 99th percentile of the image within a wavelength of the spot's depth (as `focused`)
-MIN_SPOT_SHARE = 0.02  # of the image's brightest spot: weaker is migration noise, unless it stands out of its row:
-MIN_ROW_CONTRAST = 10.0  # times its depth row's median envelope
+MIN_SPOT_SHARE = 0.02  # of the image's brightest spot: weaker is migration noise
 COMPACT_RATIO = 0.6  # a wavelength to one side the envelope falls below this share of the spot (a layer doesn't)
 RINGING_WAVELENGTHS = 0.75  # an antenna rings about one and a half periods: that far under a spot is its echo
 ECHO_X_M = 0.03
 CROSSING_WAVELENGTHS = 0.5  # a V of crossing flanks migrates to a smear about this far around the crossing
 MAX_SPOTS_PER_M = 10
 EXPLAINED_M = 0.03  # a spot this near a detection's top (plus its radius in x) is that detection
-AGREE_TRACES = 2.0
 AGREE_PERIODS = 0.25  # a seeded fit whose top lies within this (as depth) of the spot measures its radius
 MIN_SPOT_COHERENCE = 0.4  # semblance along the seeded fit: geology's clutter focuses to spots too, but
 # its traces don't line up on a diffraction (FDTD dev and the real files: targets 0.42-0.79, clutter 0-0.33)
@@ -71,20 +69,13 @@ def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v
     band = max(1, round(wavelength / dz))
     row_level = np.percentile(e, 99.0, axis=1)
     band_level = ndimage.maximum_filter1d(row_level, 2 * band + 1, mode="nearest")
-    # Bright against the whole image, or against its own depth row: on a long real line the near-surface
-    # zone can be fifty times brighter than a deep target's focus (a trench line: 0.4-3 % of the brightest).
-    row_median = np.median(e, axis=1)
-    peaks &= (e >= MIN_SPOT_FOCUS * band_level[:, None]) & (
-        (e >= MIN_SPOT_SHARE * e.max()) | (e >= MIN_ROW_CONTRAST * row_median[:, None]))
+    peaks &= (e >= MIN_SPOT_FOCUS * band_level[:, None]) & (e >= MIN_SPOT_SHARE * e.max())
     side = max(2, round(wavelength / prep.dx_m))
     out = []
     for i, j in zip(*np.nonzero(peaks), strict=True):
         left, right = e[i, max(0, j - side)], e[i, min(e.shape[1] - 1, j + side)]
         if min(left, right) >= COMPACT_RATIO * e[i, j]:
             continue  # flat to both sides: a layer or the slab's bottom, not a diffraction's focus
-        above, below = e[max(0, i - band), j], e[min(e.shape[0] - 1, i + band), j]
-        if min(above, below) >= COMPACT_RATIO * e[i, j]:
-            continue  # a column bright at every depth: a glitched trace or ringing, not a focus
         x = float(prep.x_m[j] + peak_offset(e[i, :], j) * prep.dx_m)
         top = float(z_m[i] + peak_offset(e[:, j], i) * dz)
         out.append(Spot(x, top, float(e[i, j]), float(e[i, j] / band_level[i]), int(j)))
@@ -160,13 +151,11 @@ def _seeded_all(prep: PreparedBScan, spots: Sequence[Spot], v: float) -> list[Re
     present = [(k, r) for k, r in zip(index, fitted, strict=True) if r is not None]
     refitted = refit_each_at_velocity(prep, [r for _, r in present], v)
     agree = 0.5 * v * AGREE_PERIODS * prep.period_ns
-    # Along the line a fit cannot agree closer than the traces lie (a 4 cm field line at 400 MHz: 1.2 traces).
-    agree_x = max(agree, AGREE_TRACES * prep.dx_m)
     out: list[Reflector | None] = [None] * len(spots)
     for (k, _), r in zip(present, refitted, strict=True):
         spot = spots[k]
         if r is not None and r.fit is not None and abs(r.fit.top_m - spot.top_m) <= agree \
-                and abs(r.fit.x0_m - spot.x_m) <= agree_x:
+                and abs(r.fit.x0_m - spot.x_m) <= agree:
             out[k] = r
     return out
 
