@@ -294,3 +294,4 @@ def test_a_pipes_radius_is_the_surveys_where_it_has_one() -> None:
     held = interpret(b, GPR, V, hint_at=lambda x: SurveyHint(radius_m=0.05))
     for d in held.pipes:
         assert d.radius_m == 0.05 and d.depth_m == pytest.approx(d.fit.top_m + 0.05)
+

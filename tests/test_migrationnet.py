@@ -85,6 +85,28 @@ def test_a_disc_of_probability_becomes_one_detection() -> None:
     assert d.radius_m == pytest.approx(0.05, abs=DZ_M) and d.score == pytest.approx(0.9)
 
 
+def test_a_blob_the_network_is_unsure_of_leaves_the_mask() -> None:
+    z = depth_grid()
+    x = np.arange(150) * DX_M
+    sure = ((x[None, :] - 0.4) / 0.04) ** 2 + ((z[:, None] - 0.2) / 0.04) ** 2 <= 1.0
+    unsure = ((x[None, :] - 1.1) / 0.04) ** 2 + ((z[:, None] - 0.3) / 0.04) ** 2 <= 1.0
+    probability = np.where(sure, 0.95, np.where(unsure, 0.6, 0.05)).astype(np.float32)
+    mask, detections = blobs_to_detections(probability, x, z, 0.4, min_peak=0.7)
+    assert [round(d.x_m, 1) for d in detections] == [0.4]
+    assert mask[sure].all() and not mask[unsure].any()
+
+
+def test_the_calibrated_minimum_peak_keeps_every_true_blob() -> None:
+    from training.train_migrationnet import min_peak_keeping, true_blob_peaks
+
+    p = np.zeros((1, 20, 20))
+    p[0, 2:5, 2:5], p[0, 10:13, 10:13], p[0, 15:18, 2:5] = 0.83, 0.97, 0.99
+    truth = np.zeros((1, 20, 20), dtype=bool)
+    truth[0, 3, 3] = truth[0, 11, 11] = True  # the third blob is on no pipe: it does not count
+    peaks = true_blob_peaks(p, truth, 0.4)
+    assert sorted(np.round(peaks, 2)) == [0.83, 0.97]
+    assert min_peak_keeping(peaks) == 0.8 and min_peak_keeping(np.array([])) == 0.0
+
 def test_a_few_training_steps_reduce_the_loss() -> None:
     from training.migration_data import scene_tiles
     from training.migrationnet import MigrationNet, bce_dice_loss

@@ -72,6 +72,16 @@ def _file_loader(path: Path, spacing_m: float | None = None,
     return load
 
 
+SU_TRACE_M, SU_DT_NS, SU_FILL_V = 0.04006, 0.09766, 0.165  # the file's d2 and d1; the sand fill's velocity
+SU_APEXES = ((210, 270), (205, 400), (370, 255), (410, 260), (450, 170), (470, 195), (510, 110))  # its README
+
+
+def _su_apexes() -> tuple[Target, ...]:
+    """The trench line's apexes as its README reads them (trace, raw sample), in metres (depth at the fill's v)."""
+    return tuple(Target(trace * SU_TRACE_M, 0.5 * SU_FILL_V * sample * SU_DT_NS, None, "pipe")
+                 for trace, sample in SU_APEXES)
+
+
 def fdtd_cases() -> list[Case]:
     """Every finished FDTD scene, with its half."""
     out = []
@@ -113,9 +123,10 @@ def real_cases() -> list[Case]:
                   "separation is not stated, the antenna table's 5 cm is used"),
         Case("SU trench with 12 diffractors", "real",
              _file_loader(REAL_DATA / "su_trench_pipes_matgpr" / "trench_and_pipes.su", None, 500.0),
-             None, (), 0.03, expected_count=12,
-             note="count only (positions unpublished here); v 0.165 m/ns in the sand fill; dt and trace step "
-                  "inferred; the file states no frequency: 500 MHz is passed"),
+             None, _su_apexes(), 0.2, expected_count=12,
+             note="12 diffractors published, positions not: scored against the 7 apexes its README reads off "
+                  "the image ((trace, sample), by eye), at 0.165 m/ns (the fill's published velocity), ±0.2 m; "
+                  "dt and trace step inferred; the file states no frequency: 500 MHz is passed"),
         Case("MALÅ RD3 250 MHz geology (negative)", "real",
              _file_loader(REAL_DATA / "mala_rd3_250mhz_matgpr" / "DAT_0097.rd3"), None, (), 0.03, expected_count=0,
              note="dipping geology, no buried objects: a good interpretation reports none"),

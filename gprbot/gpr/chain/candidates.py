@@ -37,6 +37,7 @@ class ApexCandidate:
     amplitude: float
     snr: float
     polarity: float  # sign of the largest lobe at the apex
+    contrast: float = 0.0  # envelope over its median along the line at the same time (`lateral_contrast`)
 
 
 def _events(prep: PreparedBScan) -> tuple[np.ndarray, np.ndarray]:
@@ -75,6 +76,12 @@ def _earliest(events: np.ndarray, cols: np.ndarray, rows: np.ndarray, k: int, ha
     return ok
 
 
+def lateral_contrast(env: np.ndarray, noise: float) -> np.ndarray:
+    """The envelope over its median along the line at the same time (a hyperbola's top stands out of its row;
+    a bright band that every trace shares, the surface zone or a layer, does not)."""
+    return np.asarray(env / (np.median(env, axis=0, keepdims=True) + noise))
+
+
 def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
     """Apex candidates after the direct wave, strongest first (at most MAX_CANDIDATES)."""
     events, _ = _events(prep)
@@ -96,6 +103,7 @@ def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
             taken[max(0, c - k) : c + k + 1, max(0, r - quarter) : r + quarter + 1] = True
     picked.sort(key=lambda cr: -env[cr[0], cr[1]])
     limit = min(MAX_CANDIDATES_LINE, max(MAX_CANDIDATES, round(CANDIDATES_PER_M * float(np.ptp(prep.x_m)))))
+    contrast = lateral_contrast(env, prep.noise)
     out = []
     ns = env.shape[1]
     for c, r in picked[:limit]:
@@ -103,5 +111,6 @@ def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
         lo, hi = max(0, r - half), min(ns, r + half + 1)
         lobe = lo + int(np.argmax(np.abs(prep.data[c, lo:hi])))
         out.append(ApexCandidate(c, r + frac, (r + frac) * prep.dt_ns - prep.t0_ns, float(env[c, r]),
-                                 float(env[c, r] / prep.noise), 1.0 if prep.data[c, lobe] >= 0 else -1.0))
+                                 float(env[c, r] / prep.noise), 1.0 if prep.data[c, lobe] >= 0 else -1.0,
+                                 float(contrast[c, r])))
     return tuple(out)
