@@ -37,7 +37,7 @@ class ApexCandidate:
     amplitude: float
     snr: float
     polarity: float  # sign of the largest lobe at the apex
-    contrast: float = 0.0  # envelope over its median along the line at the same time (`lateral_contrast`)
+    contrast: float = 0.0  # envelope over its median along the line at the same time (`lateral_level`)
 
 
 def _events(prep: PreparedBScan) -> tuple[np.ndarray, np.ndarray]:
@@ -76,10 +76,11 @@ def _earliest(events: np.ndarray, cols: np.ndarray, rows: np.ndarray, k: int, ha
     return ok
 
 
-def lateral_contrast(env: np.ndarray, noise: float) -> np.ndarray:
-    """The envelope over its median along the line at the same time (a hyperbola's top stands out of its row;
-    a bright band that every trace shares, the surface zone or a layer, does not)."""
-    return np.asarray(env / (np.median(env, axis=0, keepdims=True) + noise))
+def lateral_level(env: np.ndarray, noise: float) -> np.ndarray:
+    """Per time sample, the envelope's median along the line plus the noise: what a candidate's contrast is
+    measured against (a hyperbola's top stands out of its row; a bright band that every trace shares, the
+    surface zone or a layer, does not)."""
+    return np.asarray(np.median(env, axis=0) + noise)
 
 
 def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
@@ -103,7 +104,7 @@ def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
             taken[max(0, c - k) : c + k + 1, max(0, r - quarter) : r + quarter + 1] = True
     picked.sort(key=lambda cr: -env[cr[0], cr[1]])
     limit = min(MAX_CANDIDATES_LINE, max(MAX_CANDIDATES, round(CANDIDATES_PER_M * float(np.ptp(prep.x_m)))))
-    contrast = lateral_contrast(env, prep.noise)
+    level = lateral_level(env, prep.noise)  # only the kept candidates' contrasts are needed, not the whole image's
     out = []
     ns = env.shape[1]
     for c, r in picked[:limit]:
@@ -112,5 +113,5 @@ def apex_candidates(prep: PreparedBScan) -> tuple[ApexCandidate, ...]:
         lobe = lo + int(np.argmax(np.abs(prep.data[c, lo:hi])))
         out.append(ApexCandidate(c, r + frac, (r + frac) * prep.dt_ns - prep.t0_ns, float(env[c, r]),
                                  float(env[c, r] / prep.noise), 1.0 if prep.data[c, lobe] >= 0 else -1.0,
-                                 float(contrast[c, r])))
+                                 float(env[c, r] / level[r])))
     return tuple(out)

@@ -185,7 +185,8 @@ def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> V
     two_sided.sort(key=lambda r: -r.candidate.snr)
     # Echoes are judged against the strongest first; the voters are the hyperbolas that stand out most of
     # their own time: on a long field line the bright near-surface zone otherwise fills every seat (a trench
-    # line: six voters within 0.6 m of the surface gave 0.227 m/ns, the fill's published velocity is 0.165).
+    # line: the one of its six near-surface voters that focused gave 0.227 m/ns; the fill's published velocity is
+    # 0.165, and the deep diffractors now give 0.169).
     voters = sorted(_primaries(prep, two_sided), key=lambda r: -r.candidate.contrast)[:MAX_VOTERS]
     votes = [v for v in (vote(prep, r) for r in voters) if v is not None]
     if not votes:
