@@ -81,6 +81,14 @@ def test_dataset_sample_is_normalised_and_its_truth_lies_along_the_slices() -> N
     assert near.cd1 * sample.scale < 0.05
 
 
+def test_split_made_in_worker_processes_equals_the_one_made_in_one() -> None:
+    from training.pointcloud_data import build_split
+
+    serial, parallel = build_split("val", limit=3), build_split("val", limit=3, jobs=2)
+    assert serial.keys() == parallel.keys()
+    assert all(np.array_equal(serial[key], parallel[key]) for key in serial)
+
+
 def test_anchored_gprnet_starts_as_a_copy_of_its_input_seeds() -> None:
     torch.manual_seed(3)
     model = build_gprnet(input_seeds=448, global_dim=32, decoder_hidden=16, fold_hidden=8)

@@ -14,6 +14,7 @@ cached under training/cache/.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -114,10 +115,19 @@ def cache_path(split: str) -> Path:
     return CACHE_DIR / f"completion_{split}.npz"
 
 
-def build_split(split: str, limit: int | None = None) -> dict[str, NDArray[np.generic]]:
-    """Generate every sample of a split (optionally only the first `limit` seeds) as stacked arrays."""
+def build_split(split: str, limit: int | None = None, jobs: int = 1) -> dict[str, NDArray[np.generic]]:
+    """Generate every sample of a split (optionally only the first `limit` seeds) as stacked arrays.
+
+    Each sample depends on its seed alone, so `jobs` worker processes give the same arrays as one.
+    """
     seeds = list(split_seeds(split))[:limit]  # type: ignore[arg-type]
-    samples = [s for s in map(make_sample, track(seeds, f"{split} samples", unit="sample")) if s is not None]
+    if jobs > 1:
+        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+            made = list(track(pool.imap(make_sample, seeds, chunksize=8), f"{split} samples", unit="sample",
+                              total=len(seeds)))
+    else:
+        made = list(map(make_sample, track(seeds, f"{split} samples", unit="sample")))
+    samples = [s for s in made if s is not None]
     return {
         "seed": np.array([s.seed for s in samples]),
         "case": np.array([s.case for s in samples]),
@@ -128,13 +138,13 @@ def build_split(split: str, limit: int | None = None) -> dict[str, NDArray[np.ge
     }
 
 
-def load_split(split: str, *, generate: bool = True) -> dict[str, NDArray[np.generic]]:
-    """A split's arrays from the cache, generating and caching them first when missing."""
+def load_split(split: str, *, generate: bool = True, jobs: int = 1) -> dict[str, NDArray[np.generic]]:
+    """A split's arrays from the cache, generating and caching them first (in `jobs` processes) when missing."""
     path = cache_path(split)
     if not path.exists():
         if not generate:
             raise FileNotFoundError(f"{path} is missing; run `python -m training.pointcloud_data {split}`")
-        arrays = build_split(split)
+        arrays = build_split(split, jobs=jobs)
         CACHE_DIR.mkdir(parents=True, exist_ok=True)
         partial = path.with_suffix(".partial.npz")
         np.savez(partial, **arrays)  # type: ignore[arg-type]
@@ -147,10 +157,11 @@ def main() -> None:
     """Generate and cache the named splits, printing their size and generation time."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("splits", nargs="*", default=["train", "val", "test"])
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes for the generation")
     args = parser.parse_args()
     for split in args.splits:
         start = time.perf_counter()
-        arrays = load_split(split)
+        arrays = load_split(split, jobs=args.jobs)
         cases = {c: int(np.sum(arrays["case"] == c)) for c in CASES}
         print(f"{split}: {len(arrays['seed'])} samples {cases} in {time.perf_counter() - start:.1f} s", flush=True)
 

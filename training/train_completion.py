@@ -70,17 +70,21 @@ def augment(sparse: torch.Tensor, dense: torch.Tensor, gen: torch.Generator) -> 
 
 
 def random_subset(points: torch.Tensor, n: int, gen: torch.Generator) -> torch.Tensor:
-    """n random points (without replacement) of each cloud in a batch (B, M, 3); all when M ≤ n."""
+    """n random points (without replacement) of each cloud in a batch (B, M, 3); all when M ≤ n.
+
+    The draws come from the CPU generator wherever the points are, so a run's draws are the same on any device.
+    """
     if points.shape[1] <= n:
         return points
     index = torch.stack([torch.randperm(points.shape[1], generator=gen)[:n] for _ in range(points.shape[0])])
-    return torch.gather(points, 1, index.unsqueeze(-1).expand(-1, -1, 3))
+    return torch.gather(points, 1, index.to(points.device).unsqueeze(-1).expand(-1, -1, 3))
 
 
 def stage_loss(stages: list[torch.Tensor], dense: torch.Tensor, n: int, gen: torch.Generator) -> torch.Tensor:
     """Sum over stages of CD2 against a random n-point subset of the truth (the dense stage subsampled too)."""
     truth = random_subset(dense, n, gen)
-    return sum((chamfer_l2(random_subset(s, n, gen), truth).mean() for s in stages), torch.zeros(()))
+    return sum((chamfer_l2(random_subset(s, n, gen), truth).mean() for s in stages),
+               torch.zeros((), device=dense.device))
 
 
 @torch.no_grad()
@@ -88,8 +92,9 @@ def validate(model: torch.nn.Module, sparse: NDArray[np.float32], dense: NDArray
     """Mean CD2, CD1, F-score@1% of the full dense output against the full truth over a split."""
     model.eval()
     metrics = []
+    device = next(model.parameters()).device
     for start in range(0, len(sparse), 16):
-        out = model(torch.from_numpy(sparse[start : start + 16])).numpy()
+        out = model(torch.from_numpy(sparse[start : start + 16]).to(device)).cpu().numpy()
         metrics += [cloud_metrics(p, t) for p, t in zip(out, dense[start : start + 16], strict=True)]
     model.train()
     return {
@@ -138,13 +143,16 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     config = dict(MODEL_CONFIGS[variant])
     recipe = {"model": args.model, "variant": variant, "epochs": args.epochs, "batch_size": args.batch_size,
               "lr": args.lr, "seed": args.seed, "train_limit": args.train_limit, "loss_points": args.loss_points}
-    model = BUILDERS[args.model](**config)
+    if args.device != "cpu":  # a GPU run's floating point differs from the CPU's: its recipe says where it ran
+        recipe["device"] = args.device
+    device = torch.device(args.device)
+    model = BUILDERS[args.model](**config).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     history: list[dict[str, float]] = []
     epoch, elapsed, best = 0, 0.0, math.inf
     last = out_dir / "last.pt"
     if last.exists() and not args.fresh:
-        state = torch.load(last, weights_only=False)
+        state = torch.load(last, weights_only=False, map_location=device)
         if state.get("recipe") != recipe:
             raise SystemExit(f"{last} was written by {state.get('recipe')}, not {recipe}; pass --fresh or another "
                              "--name (resuming would splice two schedules into a run no command reproduces)")
@@ -166,6 +174,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(args.lr, epoch * steps_per_epoch + step, args.epochs * steps_per_epoch)
             x, y = augment(sparse[order[i : i + args.batch_size]], dense[order[i : i + args.batch_size]], gen)
+            x, y = x.to(device), y.to(device)
             loss = stage_loss(model.forward_stages(x), y, args.loss_points, gen)  # type: ignore[operator]
             optimizer.zero_grad()
             loss.backward()  # type: ignore[no-untyped-call]
@@ -176,8 +185,8 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         val = validate(model, val_sparse, val_dense)
         history.append({"epoch": epoch, "elapsed_s": elapsed, "train_loss": float(np.mean(losses)),
                         "val_cd2": val["cd2"], "val_cd1": val["cd1"], "val_fscore": val["fscore"]})
-        state = {"model": model.state_dict(), "model_config": config, "epoch": epoch, "seed": args.seed,
-                 "recipe": recipe,
+        weights = {k: v.cpu() for k, v in model.state_dict().items()}
+        state = {"model": weights, "model_config": config, "epoch": epoch, "seed": args.seed, "recipe": recipe,
                  "metrics": {f"val_{k}": v for k, v in val.items()}, "optimizer": optimizer.state_dict(),
                  "elapsed_s": elapsed, "history": history, "export": export_overrides(),
                  "data": {"train": len(sparse), "val": len(val_sparse), "generator": "training.pointcloud_data",
@@ -210,6 +219,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--val-limit", type=int, default=100)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu", help="torch device, e.g. cuda (the shipped runs are cpu)")
     parser.add_argument("--fresh", action="store_true", help="ignore an existing last.pt")
     return parser.parse_args(argv)
 
