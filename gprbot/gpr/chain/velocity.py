@@ -178,8 +178,8 @@ def weighted_median(values: FloatArray, weights: FloatArray) -> float:
     return float(np.asarray(values)[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
-def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> VelocityEstimate | None:
-    """The velocity the hyperbolas' migration focus agrees on; None when no hyperbola focuses."""
+def voters(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> list[Reflector]:
+    """The hyperbolas that vote: two-sided primaries, those that stand out most of their own time first."""
     two_sided = [r for r in reflectors
                  if min(r.picks.left, r.picks.right) >= max(MIN_FLANK, 0.25 * max(r.picks.left, r.picks.right))]
     two_sided.sort(key=lambda r: -r.candidate.snr)
@@ -187,8 +187,13 @@ def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> V
     # their own time: on a long field line the bright near-surface zone otherwise fills every seat (a trench
     # line: the one of its six near-surface voters that focused gave 0.227 m/ns; the fill's published velocity is
     # 0.165, and the deep diffractors now give 0.169).
-    voters = sorted(_primaries(prep, two_sided), key=lambda r: -r.candidate.contrast)[:MAX_VOTERS]
-    votes = [v for v in (vote(prep, r) for r in voters) if v is not None]
+    return sorted(_primaries(prep, two_sided), key=lambda r: -r.candidate.contrast)[:MAX_VOTERS]
+
+
+def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> VelocityEstimate | None:
+    """The velocity the hyperbolas' migration focus agrees on; None when no hyperbola focuses."""
+    chosen = voters(prep, reflectors)
+    votes = [v for v in (vote(prep, r) for r in chosen) if v is not None]
     if not votes:
         return None
     v, w = np.array([x[0] for x in votes]), np.array([x[1] for x in votes])
@@ -199,5 +204,5 @@ def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> V
     sigma_rel = max(spread / math.sqrt(n), 0.25 * step) if n > 1 else max(spread, step)
     how = (f"migration focus of {n} diffraction hyperbolas (weighted median)" if n > 1
            else "the migration focus of one diffraction hyperbola")
-    deepest = max(0.5 * median * r.candidate.t_ns for r in voters)
+    deepest = max(0.5 * median * r.candidate.t_ns for r in chosen)
     return VelocityEstimate(median, median * sigma_rel, n, how, shallow=deepest < SHALLOW_M)
