@@ -28,6 +28,22 @@ def test_the_footprint_is_the_lines_box_widened_by_half_a_spacing_across_them() 
     assert survey_footprint(_lines()) == pytest.approx(FOOTPRINT)
 
 
+@pytest.mark.parametrize("along_y", [False, True])
+def test_lines_wider_apart_than_they_are_long_still_get_half_a_spacing_across_them(along_y: bool) -> None:
+    # six lines 0.32 m apart, each 1.37 m long (pose noise of a few mm): the survey spans more across than along
+    rng = np.random.default_rng(3)
+    x = np.linspace(0.0, 1.37, 120)
+    lines = {i: np.stack([x + rng.normal(0, 0.003, x.size), np.full_like(x, 0.32 * i) + rng.normal(0, 0.003, x.size),
+                          np.zeros_like(x)], axis=1) for i in range(6)}
+    if along_y:
+        lines = {i: p[:, [1, 0, 2]] for i, p in lines.items()}
+    xmin, xmax, ymin, ymax = survey_footprint(lines)
+    across = (xmin, xmax) if along_y else (ymin, ymax)
+    along = (ymin, ymax) if along_y else (xmin, xmax)
+    assert across == pytest.approx((-0.16, 1.76), abs=0.015)
+    assert along == pytest.approx((0.0, 1.37), abs=0.015)
+
+
 def test_a_footprint_needs_a_line() -> None:
     with pytest.raises(ValueError, match="at least one line"):
         survey_footprint({})

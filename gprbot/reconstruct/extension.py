@@ -37,9 +37,11 @@ def survey_footprint(positions_per_line: Mapping[int, NDArray[np.float64]]) -> F
         raise ValueError("a survey footprint needs at least one line with positions")
     allxy = np.concatenate(lines)
     centres = np.array([line.mean(axis=0) for line in lines])
-    # lines run side by side: their spacing is the gap between neighbouring centres across the lines
-    spread = allxy.max(axis=0) - allxy.min(axis=0)
-    across = int(np.argmin(spread)) if len(lines) > 1 else 1
+    # Lines run side by side: across them is the axis along which each line itself hardly moves (not the survey's
+    # shorter side: six lines 0.32 m apart over 1.37 m runs span more across than along), and their spacing is
+    # the gap between neighbouring centres on it.
+    own_extent = np.median([line.max(axis=0) - line.min(axis=0) for line in lines], axis=0)
+    across = int(np.argmin(own_extent))
     gaps = np.diff(np.sort(centres[:, across]))
     half = 0.5 * float(np.median(gaps)) if len(gaps) else 0.0
     lo, hi = allxy.min(axis=0), allxy.max(axis=0)
