@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,8 +15,10 @@ from gprbot.reconstruct.extension import (
     cut_polyline,
     extend_to_footprint,
     rod_candidates,
+    seen_extension,
     survey_footprint,
 )
+from gprbot.reconstruct.register import SliceCloud
 
 FOOTPRINT = (0.0, 2.0, -0.05, 0.95)  # lines along x at y = 0, 0.1, ..., 0.9
 
@@ -94,3 +98,33 @@ def test_candidates_cover_the_extended_rods_inside_the_footprint() -> None:
     assert 0.5 < past.mean() < 0.8  # 0.7 of the 1.0 m rod lies past the fitted 0.3 m
     outside = (-5.0, -4.0, -5.0, -4.0)
     assert rod_candidates([pipe], outside, 256, 1024, np.random.default_rng(0)) is None
+
+
+def _slices(seen_at: dict[int, float]) -> list[SliceCloud]:
+    """Lines along x at y = 0.1 i (i = 0..9), recorded; line i shows a pipe section at x = seen_at[i] (0.2 m deep)."""
+    out = []
+    for i in range(10):
+        points = np.zeros((0, 3)) if i not in seen_at else np.array([[seen_at[i], 0.1 * i, -0.2]])
+        out.append(SliceCloud(line=i, points=points, direction=np.array([1.0, 0.0]),
+                              track_xy=np.array([[0.0, 0.1 * i], [2.0, 0.1 * i]])))
+    return out
+
+
+def test_a_continued_pipe_stops_past_two_recorded_lines_in_a_row_that_saw_nothing_there() -> None:
+    axis = np.array([[1.0, 0.3, -0.2], [1.0, 0.6, -0.2]])  # seen on lines 3..6, pushed on to y = -0.05 and 0.95
+    pushed = extend_to_footprint(axis, (None, None), FOOTPRINT)
+    # below, lines 2 and 1 show nothing at x = 1: cut half-way between them; above, line 7 misses it (an
+    # interpreter's miss) and lines 8 and 9 see it again: it runs on to the edge
+    cut = seen_extension(pushed, 0.02, _slices({3: 1.0, 4: 1.0, 5: 1.0, 6: 1.0, 8: 1.0, 9: 1.01}))
+    assert cut.axis[0] == pytest.approx([1.0, 0.15, -0.2])
+    assert cut.axis[-1] == pytest.approx([1.0, 0.95, -0.2])
+    assert cut.added == pytest.approx((0.15, 0.35))
+
+
+def test_lines_that_see_something_elsewhere_or_were_not_recorded_do_not_count_as_seeing_the_pipe() -> None:
+    axis = np.array([[1.0, 0.3, -0.2], [1.0, 0.6, -0.2]])
+    pushed = extend_to_footprint(axis, (None, None), FOOTPRINT)
+    elsewhere = seen_extension(pushed, 0.02, _slices({1: 1.5, 2: 1.5, 7: 0.3, 8: 0.3}))  # 0.5-0.7 m to the side
+    assert elsewhere.added == pytest.approx((0.15, 0.15))
+    unrecorded = [replace(s, track_xy=None) for s in _slices({})]  # tracks unknown: nothing to go by
+    assert seen_extension(pushed, 0.02, unrecorded) == pushed

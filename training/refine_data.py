@@ -131,7 +131,7 @@ def make_sample(seed: int, base: Config) -> RefineSample | None:
     if not pipes:
         return None
     sparse = resample_cloud(points, SPARSE_POINTS, rng)
-    candidates = rod_candidates(pipes, footprint, FIT_POINTS, QUERY_POINTS, rng)
+    candidates = rod_candidates(pipes, footprint, FIT_POINTS, QUERY_POINTS, rng, slices)
     if candidates is None:
         return None
     half = 0.5 * spec.spacing_m

@@ -101,7 +101,7 @@ def refined_reconstruction(
     sparse = sparse_m if len(sparse_m) == SPARSE_POINTS else resample_cloud(sparse_m, SPARSE_POINTS, rng)
     if not np.all(np.isfinite(sparse)):
         raise InterpretationError("the sparse cloud has non-finite points; check the registered slices")
-    candidates = rod_candidates(pipes, footprint, FIT_POINTS, QUERY_POINTS, rng)
+    candidates = rod_candidates(pipes, footprint, FIT_POINTS, QUERY_POINTS, rng, slices)
     if candidates is None:
         raise InterpretationError(f"no fitted pipe lies inside the survey's footprint {footprint}; check the "
                                   "recorded positions of the lines")

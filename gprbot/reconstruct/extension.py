@@ -17,8 +17,12 @@ from numpy.typing import NDArray
 
 from gprbot.geometry import drop_repeated_vertices, polyline_length, sample_rods
 from gprbot.reconstruct.completion import PipeModel
+from gprbot.reconstruct.register import SliceCloud
 
 MAX_EXTENSION_M = 1.5  # no pipe end is pushed further than this, whatever the survey's size
+MAX_UNSEEN_CROSSINGS = 1  # recorded lines in a row that may miss a continued pipe (an interpreter misses a weak one)
+SUPPORT_MIN_M = 0.1  # a line supports a continued pipe with a slice point this close in plan (or 3 radii) ...
+SUPPORT_DEPTH_M = 0.1  # ... and within this (plus 3 radii) of the axis' depth there
 Footprint = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax of the surveyed area (m)
 
 
@@ -88,6 +92,64 @@ def extend_to_footprint(axis: NDArray[np.float64], ends_on: tuple[int | None, in
     return ExtendedAxis(extended, (added[0], added[1]))
 
 
+def _crossings(start: NDArray[np.float64], step: NDArray[np.float64], length: float,
+               slices: Sequence[SliceCloud]) -> list[tuple[float, SliceCloud]]:
+    """Where the segment start + s·step (0 < s ≤ length, plan view) crosses a recorded line's track, nearest first."""
+    out = []
+    for sl in slices:
+        if sl.track_xy is None:
+            continue
+        a, b = sl.track_xy
+        # start + s·step = a + u·(b − a): two equations in (s, u)
+        system = np.array([[step[0], a[0] - b[0]], [step[1], a[1] - b[1]]])
+        if abs(float(np.linalg.det(system))) < 1e-12:
+            continue  # running along the line: it crosses nothing
+        s, u = np.linalg.solve(system, a - start[:2])
+        if 1e-6 < s <= length and 0.0 <= u <= 1.0:
+            out.append((float(s), sl))
+    return sorted(out, key=lambda c: c[0])
+
+
+def _supports(sl: SliceCloud, point: NDArray[np.float64], radius: float) -> bool:
+    """Whether a line's slice has a point near where a continued pipe would cross it."""
+    if len(sl.points) == 0:
+        return False
+    near_xy = np.hypot(sl.points[:, 0] - point[0], sl.points[:, 1] - point[1]) <= max(SUPPORT_MIN_M, 3.0 * radius)
+    near_z = np.abs(sl.points[:, 2] - point[2]) <= SUPPORT_DEPTH_M + 3.0 * radius
+    return bool(np.any(near_xy & near_z))
+
+
+def seen_extension(ext: ExtendedAxis, radius: float, slices: Sequence[SliceCloud]) -> ExtendedAxis:
+    """The extension cut where recorded lines stop seeing the pipe: past MAX_UNSEEN_CROSSINGS lines in a row whose
+    slices show nothing where it would cross them, it ends half-way back to the line before.
+
+    A line that was recorded and interpreted, and shows nothing there, is evidence the pipe does not go on (a bend's
+    leg pushed straight on past the corner crossed eight such lines on a simulated survey); a missing line is none.
+    """
+    cut = list(ext.added)
+    total = polyline_length(ext.axis)
+    for k, (tip, inner) in enumerate(((ext.axis[0], ext.axis[1]), (ext.axis[-1], ext.axis[-2]))):
+        added = ext.added[k]
+        if added <= 0.0:
+            continue
+        direction = (tip - inner) / max(float(np.linalg.norm(tip - inner)), 1e-12)
+        origin = tip - direction * added  # where the fitted part ended
+        unseen, previous = 0, 0.0
+        for s, sl in _crossings(origin, direction[:2], added, slices):
+            if _supports(sl, origin + direction * s, radius):
+                unseen = 0
+            else:
+                unseen += 1
+                if unseen > MAX_UNSEEN_CROSSINGS:
+                    cut[k] = 0.5 * (previous + s)
+                    break
+            previous = s
+    if cut == list(ext.added):
+        return ext
+    axis = cut_polyline(ext.axis, ext.added[0] - cut[0], total - (ext.added[1] - cut[1]))
+    return ExtendedAxis(axis, (cut[0], cut[1]))
+
+
 def arclength_on(points: NDArray[np.float64], polyline: NDArray[np.float64]) -> NDArray[np.float64]:
     """Arc length (m from the polyline's start) of each point's nearest point on the polyline."""
     points = np.atleast_2d(points)
@@ -148,10 +210,12 @@ class RodCandidates:
 
 
 def rod_candidates(pipes: Sequence[PipeModel], footprint: Footprint, n_fit: int, n_query: int,
-                   rng: np.random.Generator) -> RodCandidates | None:
-    """Sample the fitted rods and the rods extended to the footprint; None when nothing lies in the footprint."""
+                   rng: np.random.Generator, slices: Sequence[SliceCloud] = ()) -> RodCandidates | None:
+    """Sample the fitted rods and the rods extended to the footprint (cut where the `slices`' recorded lines stop
+    seeing them); None when nothing lies in the footprint."""
     axes, radii = [p.axis for p in pipes], [p.radius_m for p in pipes]
-    extended = tuple(extend_to_footprint(p.axis, p.ends_on, footprint) for p in pipes)
+    extended = tuple(seen_extension(extend_to_footprint(p.axis, p.ends_on, footprint), p.radius_m, slices)
+                     for p in pipes)
     fit, fit_pipe = sample_rods(axes, radii, n_fit, rng)
     query, query_pipe = sample_rods([e.axis for e in extended], radii, n_query, rng, region_xy=footprint)
     if len(fit) < n_fit or len(query) < n_query:

@@ -32,6 +32,7 @@ class SliceCloud:
     direction: NDArray[np.float64]
     pixel_pitch_m: tuple[float, float] | None = None
     pose_std_m: float = 0.0  # RMS 1σ of the line's antenna positions (from the pose filter); 0: unknown
+    track_xy: NDArray[np.float64] | None = None  # (2, 2): where the line started and ended in plan; None: unknown
 
 
 def line_direction(column_positions: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -81,7 +82,7 @@ def register_slice(
     pitch_along = float(np.median(np.linalg.norm(np.diff(columns[:, :2], axis=0), axis=1)))
     pitch_depth = float(np.median(np.abs(np.diff(z_m)))) if nz > 1 else 0.0
     return SliceCloud(line=line, points=points, direction=direction, pixel_pitch_m=(pitch_along, pitch_depth),
-                      pose_std_m=pose_std_m)
+                      pose_std_m=pose_std_m, track_xy=columns[[0, -1], :2].copy())
 
 
 def farthest_point_indices(points: NDArray[np.float64], n: int, rng: np.random.Generator) -> NDArray[np.intp]:
