@@ -10,10 +10,12 @@ import pytest
 from gprbot.reconstruct.completion import PipeModel
 from gprbot.reconstruct.extension import (
     MAX_EXTENSION_M,
+    ExtendedAxis,
     arclength_on,
     beyond_fit,
     cut_polyline,
     extend_to_footprint,
+    met_extensions,
     rod_candidates,
     seen_extension,
     survey_footprint,
@@ -128,3 +130,35 @@ def test_lines_that_see_something_elsewhere_or_were_not_recorded_do_not_count_as
     assert elsewhere.added == pytest.approx((0.15, 0.15))
     unrecorded = [replace(s, track_xy=None) for s in _slices({})]  # tracks unknown: nothing to go by
     assert seen_extension(pushed, 0.02, unrecorded) == pushed
+
+
+def _pushed(fitted: list[tuple[float, float, float]], tip: tuple[float, float, float]) -> ExtendedAxis:
+    """A fitted straight axis pushed on at its end to `tip`."""
+    axis = np.array([*fitted[:-1], tip], dtype=np.float64)
+    return ExtendedAxis(axis, (0.0, float(np.linalg.norm(np.subtract(tip, fitted[-1])))))
+
+
+def test_two_pushed_on_legs_that_meet_stop_at_the_corner() -> None:
+    up = _pushed([(0.0, 0.0, -0.3), (0.0, 1.2, -0.3)], (0.0, 2.0, -0.3))
+    across = _pushed([(1.5, 1.5, -0.3), (0.3, 1.5, -0.3)], (-0.5, 1.5, -0.3))
+    cut = met_extensions([up, across], [0.02, 0.02])
+    assert cut[0].added[1] == pytest.approx(0.3, abs=1e-6)
+    assert cut[1].added[1] == pytest.approx(0.3, abs=1e-6)
+    np.testing.assert_allclose(cut[0].axis[-1], [0.0, 1.5, -0.3], atol=1e-6)
+    np.testing.assert_allclose(cut[1].axis[-1], [0.0, 1.5, -0.3], atol=1e-6)
+
+
+def test_a_pushed_on_end_stops_on_a_pipe_it_runs_into() -> None:
+    up = _pushed([(0.0, 0.0, -0.3), (0.0, 1.2, -0.3)], (0.0, 2.0, -0.3))
+    main = ExtendedAxis(np.array([[-1.0, 1.6, -0.31], [1.0, 1.6, -0.31]]), (0.0, 0.0))
+    cut = met_extensions([up, main], [0.02, 0.03])
+    assert cut[0].added[1] == pytest.approx(0.4, abs=1e-6)
+    assert cut[1] is main
+
+
+def test_pipes_side_by_side_or_crossing_deeper_do_not_meet() -> None:
+    up = _pushed([(0.0, 0.0, -0.3), (0.0, 1.2, -0.3)], (0.0, 2.0, -0.3))
+    beside = _pushed([(0.05, 0.0, -0.3), (0.05, 1.2, -0.3)], (0.05, 2.0, -0.3))
+    deeper = ExtendedAxis(np.array([[-1.0, 1.6, -0.8], [1.0, 1.6, -0.8]]), (0.0, 0.0))
+    cut = met_extensions([up, beside, deeper], [0.02, 0.02, 0.03])
+    assert [c.added for c in cut] == [up.added, beside.added, deeper.added]

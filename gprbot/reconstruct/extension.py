@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.geometry import drop_repeated_vertices, polyline_length, sample_rods
+from gprbot.geometry import closest_points_of_segments, drop_repeated_vertices, polyline_length, sample_rods
 from gprbot.reconstruct.completion import PipeModel
 from gprbot.reconstruct.register import SliceCloud
 
@@ -23,6 +23,9 @@ MAX_EXTENSION_M = 1.5  # no pipe end is pushed further than this, whatever the s
 MAX_UNSEEN_CROSSINGS = 1  # recorded lines in a row that may miss a continued pipe (an interpreter misses a weak one)
 SUPPORT_MIN_M = 0.1  # a line supports a continued pipe with a slice point this close in plan (or 3 radii) ...
 SUPPORT_DEPTH_M = 0.1  # ... and within this (plus 3 radii) of the axis' depth there
+MEET_MARGIN_M = 0.01  # a pushed-on end meets another pipe when the axes pass within the larger radius + this, ...
+MEET_SLACK_PER_M = 0.05  # ... plus this per metre pushed on (a direction from few centres is a few % off)
+SIDE_BY_SIDE_COS = 0.95  # two ends pushed on the same way this near parallel run side by side: they never meet
 Footprint = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax of the surveyed area (m)
 
 
@@ -150,6 +153,68 @@ def seen_extension(ext: ExtendedAxis, radius: float, slices: Sequence[SliceCloud
     return ExtendedAxis(axis, (cut[0], cut[1]))
 
 
+def _added_part(ext: ExtendedAxis, end: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Where the fitted part ended and the tip, for one end (0: start, 1: end) of an extended axis."""
+    tip, inner = (ext.axis[0], ext.axis[1]) if end == 0 else (ext.axis[-1], ext.axis[-2])
+    direction = (tip - inner) / max(float(np.linalg.norm(tip - inner)), 1e-12)
+    return tip - direction * ext.added[end], tip
+
+
+def _fitted_part(ext: ExtendedAxis) -> NDArray[np.float64]:
+    """The extended axis less what was added at its ends."""
+    return cut_polyline(ext.axis, ext.added[0], polyline_length(ext.axis) - ext.added[1])
+
+
+def met_extensions(extended: Sequence[ExtendedAxis], radii: Sequence[float]) -> tuple[ExtendedAxis, ...]:
+    """The extensions cut where they run into another pipe, shortest push first.
+
+    Two pushed-on ends that meet are the legs of a bend whose corner no line saw: both stop at the meeting point
+    (pushed straight on, each ran past the corner). An end that runs into another pipe's fitted part stops on its
+    axis (a tee further from the last sighting than the fit's own join reaches).
+    """
+    ends = [(k, e) for k, ext in enumerate(extended) for e in (0, 1) if ext.added[e] > 0.0]
+    parts = {(k, e): _added_part(extended[k], e) for k, e in ends}
+    meetings: list[tuple[float, tuple[int, int], float, tuple[int, int] | None, float]] = []
+    for i, (k, e) in enumerate(ends):
+        o, tip = parts[(k, e)]
+        length = extended[k].added[e]
+        for q, f in ends[i + 1:]:
+            if q == k:
+                continue
+            o2, tip2 = parts[(q, f)]
+            length2 = extended[q].added[f]
+            if float((tip - o) @ (tip2 - o2)) > SIDE_BY_SIDE_COS * length * length2:
+                continue
+            s, t, distance = closest_points_of_segments(o, tip, o2, tip2)
+            gate = max(radii[k], radii[q]) + MEET_MARGIN_M + MEET_SLACK_PER_M * (s * length + t * length2)
+            if distance <= gate:
+                meetings.append((s * length + t * length2, (k, e), s * length, (q, f), t * length2))
+        for q, other in enumerate(extended):
+            if q == k:
+                continue
+            for a, b in itertools.pairwise(_fitted_part(other)):
+                s, _, distance = closest_points_of_segments(o, tip, a, b)
+                if distance <= radii[q] + MEET_MARGIN_M + MEET_SLACK_PER_M * s * length:
+                    meetings.append((s * length, (k, e), s * length, None, 0.0))
+    kept: dict[tuple[int, int], float] = {}
+    for _, end, pushed, met_end, met_pushed in sorted(meetings, key=lambda m: m[0]):
+        if end in kept or (met_end is not None and met_end in kept):
+            continue
+        kept[end] = pushed
+        if met_end is not None:
+            kept[met_end] = met_pushed
+    out = []
+    for k, ext in enumerate(extended):
+        added = (kept.get((k, 0), ext.added[0]), kept.get((k, 1), ext.added[1]))
+        if added == ext.added:
+            out.append(ext)
+            continue
+        total = polyline_length(ext.axis)
+        axis = cut_polyline(ext.axis, ext.added[0] - added[0], total - (ext.added[1] - added[1]))
+        out.append(ExtendedAxis(axis, added))
+    return tuple(out)
+
+
 def arclength_on(points: NDArray[np.float64], polyline: NDArray[np.float64]) -> NDArray[np.float64]:
     """Arc length (m from the polyline's start) of each point's nearest point on the polyline."""
     points = np.atleast_2d(points)
@@ -212,10 +277,10 @@ class RodCandidates:
 def rod_candidates(pipes: Sequence[PipeModel], footprint: Footprint, n_fit: int, n_query: int,
                    rng: np.random.Generator, slices: Sequence[SliceCloud] = ()) -> RodCandidates | None:
     """Sample the fitted rods and the rods extended to the footprint (cut where the `slices`' recorded lines stop
-    seeing them); None when nothing lies in the footprint."""
+    seeing them, and where they run into another pipe); None when nothing lies in the footprint."""
     axes, radii = [p.axis for p in pipes], [p.radius_m for p in pipes]
-    extended = tuple(seen_extension(extend_to_footprint(p.axis, p.ends_on, footprint), p.radius_m, slices)
-                     for p in pipes)
+    extended = met_extensions([seen_extension(extend_to_footprint(p.axis, p.ends_on, footprint), p.radius_m, slices)
+                               for p in pipes], radii)
     fit, fit_pipe = sample_rods(axes, radii, n_fit, rng)
     query, query_pipe = sample_rods([e.axis for e in extended], radii, n_query, rng, region_xy=footprint)
     if len(fit) < n_fit or len(query) < n_query:
