@@ -10,6 +10,7 @@ from scipy import optimize
 
 from gprbot.config import GprConfig, InterpretationConfig
 from gprbot.errors import InterpretationError
+from gprbot.gpr import velocity
 from gprbot.gpr.bscan import BScan, SyntheticTarget, synthetic_bscan
 from gprbot.gpr.cylinder import fit_cylinder
 from gprbot.gpr.hyperbola import HyperbolaPicks, hyperbolas_of_line
@@ -19,6 +20,7 @@ from gprbot.gpr.velocity import (
     V_GUESS_M_PER_NS,
     chain_radii,
     estimate_velocity,
+    fit_shared_velocity,
     link_crossing_angles,
     link_crossings,
     pipe_chains,
@@ -122,3 +124,34 @@ def test_chains_link_one_pipe_across_lines_and_share_its_radius() -> None:
 def test_no_hyperbola_means_no_velocity() -> None:
     with pytest.raises(InterpretationError, match="eps_r"):
         estimate_velocity([_line(6.5, targets=[])], GPR, CFG)
+
+
+def _lagging_picks(lag_ns: float) -> tuple[HyperbolaPicks, GprConfig, float]:
+    """A 1.5 cm pipe's picks (metal_pipe_2600's geometry) whose flanks lag the ray model beyond 35°, as
+    gprMax's do: lag_ns per 10° past 35°."""
+    gpr, v, x0, centre, radius = GprConfig(antenna_height_m=0.01, tx_rx_offset_m=0.03), 0.1224, 0.22, 0.10, 0.015
+    x = np.arange(-0.08, 0.0801, 0.005) + x0
+    angle = np.degrees(np.arctan(np.abs(x - x0) / (centre - radius)))
+    t = cylinder_times(x, x0, centre, radius, v, gpr) + lag_ns * np.clip((angle - 35.0) / 10.0, 0.0, None)
+    apex = int(np.argmin(t))
+    return HyperbolaPicks(x, t, np.ones_like(x), 1.0, float(x[apex]), float(t[apex]), 1.0, (x0, centre, v)), gpr, v
+
+
+def test_held_fit_does_not_slide_along_the_radius_valley_when_wide_flanks_lag() -> None:
+    picks, gpr, v_true = _lagging_picks(0.03)
+    v, _, params, _ = fit_shared_velocity([picks], gpr, V_GUESS_M_PER_NS, held=True)
+    assert v == pytest.approx(v_true, rel=0.05)
+    assert params[0, 2] < 0.03
+    # the same picks read to 60° with a free radius: R runs to several cm and v far too slow
+    v_free, _, params_free, _ = fit_shared_velocity([picks], gpr, V_GUESS_M_PER_NS)
+    assert v_free < 0.8 * v_true
+    assert params_free[0, 2] > 0.05
+
+
+def test_free_fit_is_exact_where_the_flanks_follow_the_ray_model() -> None:
+    picks, gpr, v_true = _lagging_picks(0.0)
+    v, _, params, _ = fit_shared_velocity([picks], gpr, V_GUESS_M_PER_NS)
+    assert v == pytest.approx(v_true, rel=0.002)
+    assert params[0, 2] == pytest.approx(0.015, abs=0.002)
+    held, _, _, _ = fit_shared_velocity([picks], gpr, V_GUESS_M_PER_NS, held=True)
+    assert abs(held / v_true - 1.0) <= velocity.FLANKS_AGREE  # so estimate_velocity keeps the free one
