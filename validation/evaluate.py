@@ -122,7 +122,9 @@ def report(rows: Sequence[Row], groups: Sequence[str], methods: Sequence[str]) -
              "(lost pipes there, taken out), and the unmeasured-radius, correlated-residual and short-line rules "
              "(kept: within 3 cm 59 -> 77 %, velocity given). On 2026-12-04 it was run once more before this "
              "report, to check spot rules drawn from the dev half and the real trench line (false pipes 0.48 -> 0.57 "
-             "a scene, velocity given, no pipe gained: taken out).", ""]
+             "a scene, velocity given, no pipe gained: taken out). On 2026-12-05 the survey velocity's held fit "
+             "(gprbot.gpr.velocity, drawn from the dev half) was first measured on it through the end-to-end table "
+             "(models/eval_end_to_end_fdtd.md), then here; it moves only the legacy rows.", ""]
     keys = list(summary([]).keys())
     for group in groups:
         if group == "real":
