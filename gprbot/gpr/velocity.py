@@ -15,9 +15,10 @@ same data give 2–5 % velocity errors and radii off by a factor of 2 (measured,
 That holds where the far flanks follow the ray model, as on our simulator. On gprMax B-scans they lag
 it by a few tens of ps at 40° (the reflected wavelet changes with the angle), and the wide fit slid
 along the v–R valley (metal_pipe_2600: R 7 cm for 1.5 cm, v −24 %; FDTD dev half surveys: median
-−18 %, none within 5 %). So the survey's velocity is first fitted *held*: each hyperbola within
-VELOCITY_APERTURE_DEG of its apex, its radius held towards RADIUS_PRIOR_M; the wide free fit is taken
-only where it lands within FLANKS_AGREE of that (validation/README.md, "The survey velocity's slow bias").
+−18 %, none within 5 %). So the survey's velocity is also fitted *held* (on the hyperbolas the wide fit
+kept): each within VELOCITY_APERTURE_DEG of its apex, its radius held towards RADIUS_PRIOR_M; the wide
+fit stands only where it lands within FLANKS_AGREE of that (validation/README.md, "The survey
+velocity's slow bias").
 """
 
 from __future__ import annotations
@@ -121,8 +122,8 @@ def fit_shared_velocity(
     """
     if held:
         hyperbolas = [near_apex(h, v0, gpr) for h in hyperbolas]
-    prior_weight = RADIUS_PRIOR_NS_PER_M if held else 0.0
     n = len(hyperbolas)
+    n_prior = n if held else 0  # one prior row per radius, held fits only
     sizes = [len(h.t_ns) for h in hyperbolas]
     starts = np.concatenate([[0], np.cumsum(sizes)])
     x_all = np.concatenate([h.x_m for h in hyperbolas])
@@ -133,15 +134,16 @@ def fit_shared_velocity(
     def residual(p: FloatArray) -> FloatArray:
         per_pick = p[1:].reshape(n, 3)[owner]
         times = cylinder_times(x_all, per_pick[:, 0], per_pick[:, 1], per_pick[:, 2], p[0], gpr, sin_all)
-        prior = (p[3::3] - RADIUS_PRIOR_M) * prior_weight
+        prior = (p[3::3][:n_prior] - RADIUS_PRIOR_M) * RADIUS_PRIOR_NS_PER_M
         return np.concatenate([times - t_all, prior]).astype(np.float64)
 
-    sparsity = lil_matrix((starts[-1] + n, 1 + 3 * n), dtype=np.int8)
+    sparsity = lil_matrix((starts[-1] + n_prior, 1 + 3 * n), dtype=np.int8)
     sparsity[:, 0] = 1
     p0, lb, ub = [v0], [V_BOUNDS_M_PER_NS[0]], [V_BOUNDS_M_PER_NS[1]]
     for i, h in enumerate(hyperbolas):
         sparsity[starts[i] : starts[i + 1], 1 + 3 * i : 4 + 3 * i] = 1
-        sparsity[starts[-1] + i, 3 + 3 * i] = 1
+        if held:
+            sparsity[starts[-1] + i, 3 + 3 * i] = 1
         z = depth_for_apex_time(h.apex_t_ns, v0, gpr)
         p0 += [h.apex_x_m, z + 0.02, 0.02]
         lb += [h.apex_x_m - 0.2, 0.005, 0.0]
@@ -355,7 +357,7 @@ def estimate_velocity(
     period = 1000.0 / gpr.centre_frequency_mhz
     kept = list(range(len(hyperbolas)))
     for _ in range(3):
-        v, std, _, rms = fit_shared_velocity(hyperbolas, gpr, v0, sines, held=True)
+        v, std, _, rms = fit_shared_velocity(hyperbolas, gpr, v0, sines)
         good = (rms <= 3.0 * float(np.median(rms))) | (rms <= period / 20.0)
         if good.all():
             break
@@ -363,9 +365,10 @@ def estimate_velocity(
         sines = [s for s, g in zip(sines, good, strict=True) if g]
         kept = [k for k, g in zip(kept, good, strict=True) if g]
         v0 = v
-    v_free, std_free, _, _ = fit_shared_velocity(hyperbolas, gpr, v, sines)
-    if abs(v_free / v - 1.0) <= FLANKS_AGREE:
-        v, std = v_free, std_free
+    # The wide free fit stands where the held one agrees with it; else its far flanks do not follow the ray model.
+    v_held, std_held, _, _ = fit_shared_velocity(hyperbolas, gpr, v, sines, held=True)
+    if abs(v / v_held - 1.0) > FLANKS_AGREE:
+        v, std = v_held, std_held
     # Radii from cylinder fits at the survey's velocity (pooled over each pipe's lines), not the joint
     # fit's (which absorb what the shared velocity leaves): on the bend_tee elbow 2.1 against 3.3 cm for 3 cm.
     radii = chain_radii([chains[k] for k in kept], list(zip(hyperbolas, sines, strict=True)), v, gpr)
