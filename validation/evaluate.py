@@ -9,6 +9,7 @@ and time per B-scan. Writes the same tables to a markdown report naming the comm
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import subprocess
 import sys
@@ -51,7 +52,9 @@ def summary(rows: Sequence[Row]) -> dict[str, str]:
     s = [r.score for r in rows]
     pipes = sum(x.pipes for x in s)
     # A velocity that was not estimated (a fallback) counts as a miss, on scenes that have targets.
-    v_err = [abs(r.outcome.velocity / r.case.velocity - 1.0) if r.outcome.velocity_estimated else float("inf")
+    # A method that failed on the line (NaN) estimated nothing either.
+    v_err = [abs(r.outcome.velocity / r.case.velocity - 1.0)
+             if r.outcome.velocity_estimated and math.isfinite(r.outcome.velocity) else float("inf")
              for r in rows if r.mode == "estimated" and r.case.velocity and r.case.targets]
     v_ok = sum(1 for e in v_err if e <= 0.05)
     times = [r.outcome.seconds for r in rows]
