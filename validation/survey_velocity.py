@@ -1,0 +1,68 @@
+"""`python -m validation.survey_velocity`: the survey's velocity estimate per survey, against the truth.
+
+The product's own estimate (`gprbot.infer.pipeline.survey_velocity`: the hyperbola fit of every line,
+wide or held, else the chain's per-line votes), on the surveys `training.eval_end_to_end` runs: the FDTD
+dev or test half laid on survey lines, or the first N simulated test surveys. Prints each survey's
+error and the median |error| and the count within 5 %; `--wide-only` turns the held fit off
+(`FLANKS_AGREE` = ∞), the estimate before 80bb197.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import statistics
+import time
+from collections.abc import Callable
+
+import gprbot.gpr.velocity as velocity
+from gprbot.config import load_config
+from gprbot.errors import GprbotError
+from gprbot.gpr.preprocess import preprocess
+from gprbot.infer.pipeline import survey_velocity
+from training.e2e_surveys import Survey, fdtd_surveys, simulated_survey
+from training.pointcloud_data import load_split
+
+
+def surveys(source: str, limit: int) -> list[Callable[[], Survey]]:
+    """Lazy makers of the surveys: 'dev' or 'test' (FDTD halves) or 'sim' (the first `limit` test surveys)."""
+    base = load_config()
+    if source == "sim":
+        data = load_split("test")
+        return [lambda i=i: simulated_survey(i, data, base.gpr) for i in range(limit)]  # type: ignore[misc]
+    return [lambda s=s: s for s in fdtd_surveys(source)]  # type: ignore[misc]
+
+
+def main() -> None:
+    """Print each survey's velocity error and the summary."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("source", choices=("dev", "test", "sim"))
+    parser.add_argument("--limit", type=int, default=30, help="sim: the first N test surveys")
+    parser.add_argument("--wide-only", action="store_true", help="the wide fit alone (before 80bb197)")
+    args = parser.parse_args()
+    if args.wide_only:
+        velocity.FLANKS_AGREE = math.inf
+    base = load_config()
+    errors: list[float] = []
+    for make in surveys(args.source, args.limit):
+        survey = make()
+        cfg = dataclasses.replace(base, gpr=survey.gpr)
+        start = time.perf_counter()
+        try:
+            v, _, _ = survey_velocity({line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}, cfg)
+        except GprbotError as exc:
+            print(f"{survey.name:26s} {survey.case[:22]:22s} not estimated: {exc}")
+            errors.append(math.inf)
+            continue
+        error = v / survey.true_velocity - 1.0
+        errors.append(abs(error))
+        print(f"{survey.name:26s} {survey.case[:22]:22s} {100 * error:+6.1f} %  ({time.perf_counter() - start:.1f} s)",
+              flush=True)
+    within = sum(1 for e in errors if e <= 0.05)
+    median = 100 * statistics.median(errors)
+    print(f"{args.source}: median |error| {median:.1f} %, within 5 % {within} of {len(errors)}")
+
+
+if __name__ == "__main__":
+    main()
