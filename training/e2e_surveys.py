@@ -16,10 +16,11 @@ perpendicular to the lines: no bends, tees, oblique crossings or missing lines.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -35,7 +36,7 @@ from gprbot.sim.forward import simulate_bscan
 from gprbot.sim.scene import Pipe, Scene, Slab
 from gprbot.sim.truth import sample_pipe_interiors
 from training.migration_data import simulate_line
-from training.pointcloud_data import DENSE_POINTS
+from training.pointcloud_data import DENSE_POINTS, load_split
 from training.random_scenes import SurveySpec, gpr_config, random_scene, recorded_positions, scene_for_seed
 from validation.cases import FDTD_DATA, Case, fdtd_cases
 
@@ -83,6 +84,21 @@ def simulated_survey(index: int, data: Mapping[str, NDArray[Any]], base: GprConf
     return Survey(f"seed {seed}", str(data["case"][index]), seed, bscans, gpr, scene, survey_region(spec),
                   velocity_from_eps(scene.slab.eps_r), np.asarray(data["dense"][index], dtype=np.float32),
                   np.asarray(data["centre"][index], dtype=np.float64), float(data["scale"][index]))
+
+
+def survey_makers(source: str, gpr: GprConfig, limit: int = 60, half: str = "test") -> list[Callable[[], Survey]]:
+    """Lazy makers of the surveys of one source: "sim" (the first `limit` test surveys, built one at a time, with
+    the antenna settings of `gpr`) or "fdtd" (every scene of one FDTD half)."""
+    if source == "sim":
+        data = load_split("test")
+        count = min(limit, len(data["seed"]))
+        return [functools.partial(simulated_survey, i, data, gpr) for i in range(count)]
+    return [_given(s) for s in fdtd_surveys(half)]
+
+
+def _given(survey: Survey) -> Callable[[], Survey]:
+    """A maker of a survey already built."""
+    return lambda: survey
 
 
 def fdtd_surveys(half: str = "test") -> list[Survey]:

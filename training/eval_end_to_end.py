@@ -40,8 +40,7 @@ from gprbot.reconstruct.register import resample_cloud
 from gprbot.simulated.evaluation import compare_to_truth
 from training.chamfer import cloud_metrics
 from training.code_version import code_version
-from training.e2e_surveys import Survey, fdtd_surveys, simulated_survey
-from training.pointcloud_data import load_split
+from training.e2e_surveys import Survey, survey_makers
 from training.random_scenes import CASES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -313,16 +312,11 @@ def main() -> None:
     parser.add_argument("--half", choices=("test", "dev"), default="test", help="fdtd: which half (report: test)")
     parser.add_argument("--out", type=Path, default=None, help="default models/eval_end_to_end[_fdtd]")
     args = parser.parse_args()
+    surveys = survey_makers(args.source, load_config().gpr, args.limit, args.half)
     if args.source == "sim":
-        data = load_split("test")
-        gpr = load_config().gpr
-        count = min(args.limit, len(data["seed"]))
-        surveys: list[Callable[[], Survey]] = [lambda i=i: simulated_survey(i, data, gpr) for i in range(count)]
         command = f"python -m training.eval_end_to_end --limit {args.limit}"
         out = args.out or ROOT / "models" / "eval_end_to_end"
     else:
-        built = fdtd_surveys(args.half)
-        surveys = [lambda s=s: s for s in built]
         command = f"python -m training.eval_end_to_end --source fdtd --half {args.half}"
         name = "eval_end_to_end_fdtd" if args.half == "test" else "eval_end_to_end_fdtd_dev"
         out = args.out or ROOT / "models" / name

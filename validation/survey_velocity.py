@@ -14,24 +14,13 @@ import dataclasses
 import math
 import statistics
 import time
-from collections.abc import Callable
 
 import gprbot.gpr.velocity as velocity
 from gprbot.config import load_config
 from gprbot.errors import GprbotError
 from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.pipeline import survey_velocity
-from training.e2e_surveys import Survey, fdtd_surveys, simulated_survey
-from training.pointcloud_data import load_split
-
-
-def surveys(source: str, limit: int) -> list[Callable[[], Survey]]:
-    """Lazy makers of the surveys: 'dev' or 'test' (FDTD halves) or 'sim' (the first `limit` test surveys)."""
-    base = load_config()
-    if source == "sim":
-        data = load_split("test")
-        return [lambda i=i: simulated_survey(i, data, base.gpr) for i in range(limit)]  # type: ignore[misc]
-    return [lambda s=s: s for s in fdtd_surveys(source)]  # type: ignore[misc]
+from training.e2e_surveys import survey_makers
 
 
 def main() -> None:
@@ -45,7 +34,8 @@ def main() -> None:
         velocity.FLANKS_AGREE = math.inf
     base = load_config()
     errors: list[float] = []
-    for make in surveys(args.source, args.limit):
+    source, half = ("sim", "test") if args.source == "sim" else ("fdtd", args.source)
+    for make in survey_makers(source, base.gpr, args.limit, half):
         survey = make()
         cfg = dataclasses.replace(base, gpr=survey.gpr)
         start = time.perf_counter()

@@ -174,6 +174,7 @@ def met_extensions(extended: Sequence[ExtendedAxis], radii: Sequence[float]) -> 
     """
     ends = [(k, e) for k, ext in enumerate(extended) for e in (0, 1) if ext.added[e] > 0.0]
     parts = {(k, e): _added_part(extended[k], e) for k, e in ends}
+    fitted = [_fitted_part(ext) for ext in extended]
     meetings: list[tuple[float, tuple[int, int], float, tuple[int, int] | None, float]] = []
     for i, (k, e) in enumerate(ends):
         o, tip = parts[(k, e)]
@@ -189,10 +190,10 @@ def met_extensions(extended: Sequence[ExtendedAxis], radii: Sequence[float]) -> 
             gate = max(radii[k], radii[q]) + MEET_MARGIN_M + MEET_SLACK_PER_M * (s * length + t * length2)
             if distance <= gate:
                 meetings.append((s * length + t * length2, (k, e), s * length, (q, f), t * length2))
-        for q, other in enumerate(extended):
+        for q, other in enumerate(fitted):
             if q == k:
                 continue
-            for a, b in itertools.pairwise(_fitted_part(other)):
+            for a, b in itertools.pairwise(other):
                 s, _, distance = closest_points_of_segments(o, tip, a, b)
                 if distance <= radii[q] + MEET_MARGIN_M + MEET_SLACK_PER_M * s * length:
                     meetings.append((s * length, (k, e), s * length, None, 0.0))
