@@ -340,12 +340,15 @@ async def test_sigterm_mid_survey_stops_wheels_and_closes_the_run_log(daemon_no_
     emulator = runtime.sim.motors
     wheel_map = runtime.cfg.motors.wheel_map
     assert (await client.command("survey pause")).ok
-    await asyncio.sleep(0.1)
-    assert all(emulator.commanded_speed(a, c) == 0 for a, c in wheel_map)
+    # Poll rather than sleep a fixed time: a loaded CI machine may take longer than the motion loop's tick.
+    async with asyncio.timeout(5):
+        while any(emulator.commanded_speed(a, c) != 0 for a, c in wheel_map):
+            await asyncio.sleep(0.01)
     assert any(" paused line 1/2 " in line for line in (await client.command("status")).body)
     assert (await client.command("survey resume")).ok
-    await asyncio.sleep(0.3)
-    assert min(abs(emulator.commanded_speed(a, c)) for a, c in wheel_map) > 1.0
+    async with asyncio.timeout(5):
+        while min(abs(emulator.commanded_speed(a, c)) for a, c in wheel_map) <= 1.0:
+            await asyncio.sleep(0.01)
     os.kill(os.getpid(), signal.SIGTERM)  # the daemon's own handler, as systemd stops it
     async with asyncio.timeout(20):
         assert await task == 0
