@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -16,9 +18,37 @@ from gprbot.config import load_config
 from gprbot.sim.scene import builtin_scene_names, load_scene
 
 
+@dataclasses.dataclass(frozen=True)
+class DemoOutcome:
+    """What a demo run in a worker process hands back to the test."""
+
+    out_dir: Path
+    ok: bool
+    extras: int
+    table: str
+    n_pipes: int
+
+
+def _demo_outcome(scene_name: str, out_dir: Path) -> DemoOutcome:
+    """One scene's demo with the default config (run in a worker process)."""
+    demo = run_demo(load_config(), load_scene(scene_name), out_dir)
+    return DemoOutcome(demo.out_dir, demo.ok, len(demo.extras), demo.table, len(demo.result.reconstruction.pipes))
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory: pytest.TempPathFactory) -> dict[str, DemoOutcome]:
+    """Every built-in scene's demo, two at a time: each is a whole simulated survey (sensors, visual
+    odometry, fusion, interpretation), about a minute apiece on one core, and the suite has two."""
+    root = tmp_path_factory.mktemp("demos")
+    names = builtin_scene_names()
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {n: pool.submit(_demo_outcome, n, root / n) for n in names}
+        return {n: f.result() for n, f in futures.items()}
+
+
 @pytest.mark.parametrize("scene_name", builtin_scene_names())
-def test_demo_finds_every_pipe_within_bounds(scene_name: str, tmp_path: Path) -> None:
-    demo = run_demo(load_config(), load_scene(scene_name), tmp_path / scene_name)
+def test_demo_finds_every_pipe_within_bounds(scene_name: str, demos: dict[str, DemoOutcome]) -> None:
+    demo = demos[scene_name]
     print(demo.table)
     assert demo.ok, demo.table
     assert not demo.extras, demo.table
@@ -34,7 +64,7 @@ def test_demo_finds_every_pipe_within_bounds(scene_name: str, tmp_path: Path) ->
     assert np.all(np.asarray(sparse["z"]) < 0)  # every registered point lies below the surface
 
     pipes = json.loads((out / "pipes.json").read_text())
-    assert len(pipes["pipes"]) == len(demo.result.reconstruction.pipes)
+    assert len(pipes["pipes"]) == demo.n_pipes
     summary = json.loads((out / "summary.json").read_text())
     for name in summary["files"]:
         assert (out / name).exists(), name

@@ -34,6 +34,7 @@ from gprbot.gpr.bscan import bscan_from_dzt
 from gprbot.gpr.dzt import parse_dzt
 from gprbot.gpr.dzt_header import MAX_DT_NS, MAX_SAMPLES, MIN_DT_NS
 
+from .conftest import fuzz_examples
 from .test_dzt_real import FILES
 from .test_dzt_variants import file_1999_bytes, sir4000_bytes
 
@@ -139,7 +140,7 @@ def fuzz(examples: int) -> settings:
 header_positions = st.one_of(st.integers(0, 127), st.integers(0, 1023))
 
 
-@fuzz(900)
+@fuzz(fuzz_examples(300, 900))
 @given(st.data(), st.lists(st.tuples(header_positions, st.integers(0, 255)), min_size=1, max_size=8))
 def test_overwritten_header_bytes(workdir: Path, data: st.DataObject, edits: list[tuple[int, int]]) -> None:
     raw = bytearray(data.draw(st.sampled_from(seeds())))
@@ -148,7 +149,7 @@ def test_overwritten_header_bytes(workdir: Path, data: st.DataObject, edits: lis
     exercise(bytes(raw), workdir)
 
 
-@fuzz(900)
+@fuzz(fuzz_examples(300, 900))
 @given(
     st.data(),
     st.lists(
@@ -171,7 +172,7 @@ def test_extreme_header_fields(workdir: Path, data: st.DataObject, edits: list[t
     exercise(bytes(raw), workdir)
 
 
-@fuzz(400)
+@fuzz(fuzz_examples(150, 400))
 @given(st.data(), st.floats(0.0, 1.0), st.binary(max_size=3000), st.booleans())
 def test_cut_and_extended_files(workdir: Path, data: st.DataObject, cut: float, tail: bytes, extend: bool) -> None:
     raw = data.draw(st.sampled_from(seeds()))

@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from gprbot.errors import DataFormatError
 from gprbot.gpr.formats import Radargram, read_radargram, write_radargram
-from tests.conftest import SHARED_DATA
+from tests.conftest import SHARED_DATA, fuzz_examples
 
 REAL = SHARED_DATA / "real"
 EXAMPLES = 400
@@ -125,7 +125,8 @@ def test_segy(edits: list[tuple[int, int]], in_binary: bool, chop: int | None) -
         read_bounded(path)
 
 
-@FUZZ
+# Each draw parses a 4 MB HDF5 file (~70 ms): fewer of them in the suite.
+@settings(FUZZ, max_examples=fuzz_examples(100, EXAMPLES))
 @given(byte_edits)
 def test_gprmax(edits: list[tuple[int, int]]) -> None:
     with tempfile.TemporaryDirectory() as d:

@@ -18,9 +18,15 @@ def test_scoring_counts_rebars_reported_as_rebars_as_not_false() -> None:
     found = [Found(0.505, 0.195, 0.021, "pipe"), Found(0.1, 0.05, 0.006, "rebar"), Found(0.3, 0.05, 0.006, "pipe"),
              Found(0.9, 0.3, 0.02, "pipe")]
     s = score(found, truth)
-    assert (s.pipes, s.pipes_within, s.pipes_within_fine, s.radius_ok) == (1, 1, 1, 1)
+    assert (s.pipes, s.pipes_within, s.pipes_within_fine, s.radius_ok, s.tops_within_fine) == (1, 1, 1, 1, 1)
     assert s.false_pipes == 2  # the bar reported as a pipe, and the pipe where there is nothing
     assert (s.rebars, s.rebars_found, s.false_rebars) == (2, 1, 0)
+
+
+def test_a_right_top_with_a_wrong_radius_counts_as_a_top_not_a_centre() -> None:
+    truth = [Target(0.5, 0.2, 0.05, "pipe")]  # top at 0.15
+    s = score([Found(0.5, 0.16, 0.01, "pipe")], truth)  # top 0.15, centre 4 cm high
+    assert (s.pipes_within, s.pipes_within_fine, s.tops_within_fine, s.false_pipes) == (0, 0, 1, 1)
 
 
 def test_matching_is_one_to_one_and_nearest_first() -> None:

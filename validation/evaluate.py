@@ -63,6 +63,7 @@ def summary(rows: Sequence[Row]) -> dict[str, str]:
         "pipes ≤3 cm": _pct(sum(x.pipes_within for x in s), pipes),
         "pipes ≤1 cm": _pct(sum(x.pipes_within_fine for x in s), pipes),
         "radius ≤30 %": _pct(sum(x.radius_ok for x in s), pipes),
+        "tops ≤1 cm": _pct(sum(x.tops_within_fine for x in s), pipes),
         "false pipes / scene": f"{sum(x.false_pipes for x in s) / max(len(rows), 1):.2f}",
         "rebars found": _pct(sum(x.rebars_found for x in s), sum(x.rebars for x in s)),
         "v within 5 %": _pct(v_ok, len(v_err)) if v_err else "–",
@@ -92,7 +93,8 @@ def scene_row(row: Row) -> str:
     if row.mode == "estimated" and not row.outcome.velocity_estimated:
         err = "not estimated"
     return (f"| {row.case.name} | {row.case.note} | {row.method} | {row.mode} | {s.pipes_within}/{s.pipes} | "
-            f"{s.pipes_within_fine}/{s.pipes} | {s.radius_ok}/{s.pipes} | {s.false_pipes} | "
+            f"{s.pipes_within_fine}/{s.pipes} | {s.radius_ok}/{s.pipes} | {s.tops_within_fine}/{s.pipes} | "
+            f"{s.false_pipes} | "
             f"{s.rebars_found}/{s.rebars} | {err} | {row.outcome.seconds:.3f} |")
 
 
@@ -139,8 +141,8 @@ def report(rows: Sequence[Row], groups: Sequence[str], methods: Sequence[str]) -
                 sel = [r for r in rows if r.case.group == group and r.method == m and r.mode == mode]
                 if sel:
                     lines.append(f"| {m} | {mode} | " + " | ".join(summary(sel).values()) + " |")
-        lines += ["", "| scene | kind | method | velocity | ≤3 cm | ≤1 cm | radius | false pipes | rebars | v err "
-                  "| s |", "|" + "---|" * 11]
+        lines += ["", "| scene | kind | method | velocity | ≤3 cm | ≤1 cm | radius | top ≤1 cm | false pipes | rebars "
+                  "| v err | s |", "|" + "---|" * 12]
         lines += [scene_row(r) for r in rows if r.case.group == group]
         lines.append("")
     real = [r for r in rows if r.case.group == "real"]

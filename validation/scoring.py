@@ -9,7 +9,7 @@ a rebar reported as a pipe is. Rebars are scored the same way on their own.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 TOLERANCE_M = 0.03
 FINE_TOLERANCE_M = 0.01
@@ -44,6 +44,7 @@ class Score:
     pipes_within: int
     pipes_within_fine: int
     radius_ok: int
+    tops_within_fine: int  # x and the top's depth (centre less radius) within 1 cm: what a hyperbola's apex shows
     false_pipes: int
     rebars: int
     rebars_found: int  # found within tolerance and reported as rebar
@@ -82,10 +83,14 @@ def score(found: Sequence[Found], truth: Sequence[Target], tol: float = TOLERANC
         1 for i, j in on_pipe.items()
         if pipes[i].radius_m and abs(found[j].radius_m - pipes[i].radius_m) <= RADIUS_TOLERANCE * pipes[i].radius_m
     )
+    tops = match([replace(d, depth_m=d.depth_m - d.radius_m) for d in found],
+                 [replace(t, depth_m=None if t.depth_m is None or t.radius_m is None else t.depth_m - t.radius_m)
+                  for t in pipes], min(tol, FINE_TOLERANCE_M))
     rest = [j for j in range(len(found)) if j not in set(on_pipe.values())]
     on_bar = match([found[j] for j in rest], bars, tol)
     bar_hits = {rest[j] for j in on_bar.values()}
     false_pipes = sum(1 for j in rest if found[j].kind == "pipe")
     rebars_found = sum(1 for j in bar_hits if found[j].kind == "rebar")
     false_rebars = sum(1 for j in rest if found[j].kind == "rebar" and j not in bar_hits)
-    return Score(len(pipes), len(on_pipe), len(fine), radius_ok, false_pipes, len(bars), rebars_found, false_rebars)
+    return Score(len(pipes), len(on_pipe), len(fine), radius_ok, len(tops), false_pipes, len(bars), rebars_found,
+                 false_rebars)
