@@ -296,15 +296,3 @@ def test_a_pipes_radius_is_the_surveys_where_it_has_one() -> None:
         assert d.radius_m == 0.05 and d.depth_m == pytest.approx(d.fit.top_m + 0.05)
 
 
-
-def test_a_spot_is_a_target_only_where_both_flanks_stack_on_its_point_curve() -> None:
-    from gprbot.gpr.chain.spots import Spot, flank_coherences, point_radius_bound
-
-    prep = prepare(_line([SyntheticTarget(1.0, 0.2, 0.01, 1.0)]), GPR)
-    left, right, n_left, n_right = flank_coherences(prep, Spot(1.0, 0.19, 1.0, 1.0, 100), V)
-    assert min(left, right) > 0.8 and min(n_left, n_right) > 10 and abs(n_left - n_right) <= 1
-    nothing = flank_coherences(prep, Spot(1.5, 0.19, 1.0, 1.0, 150), V)  # noise only along its curve
-    assert max(nothing[:2]) < 0.3
-    # A quarter period at the aperture's edge: 900 MHz at 0.1 m/ns, 40 degrees: about 6 cm.
-    assert point_radius_bound(prep, Spot(1.0, 0.19, 1.0, 1.0, 100), V) == pytest.approx(
-        0.25 * prep.period_ns * V / (2 * (1 - math.cos(math.radians(40.0)))))

@@ -81,14 +81,6 @@ def test_real_structurescan_line_with_two_rows_gives_all_five_targets() -> None:
     assert len(row.outcome.found) - len(hits) <= 1
 
 
-def test_fdtd_dev_two_pipes_whose_tops_merge_are_both_found_from_their_migrated_spots() -> None:
-    # 10 cm apart at 900 MHz: the picks of either run onto the other's flank; each spot's own point curve
-    # stacks on both flanks.
-    row = run_case(_case("two_pipes_900"), "chain", "given")
-    assert row.score.pipes_within == row.score.pipes == 2
-    assert row.score.false_pipes == 0
-
-
 def test_fdtd_dev_pipe_under_a_rebar_mesh_is_found_and_the_mesh_is_rebar() -> None:
     row = run_case(_case("rebar_pipe_1200"), "chain", "given")
     assert row.score.pipes_within == row.score.pipes == 1

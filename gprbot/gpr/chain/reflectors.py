@@ -47,7 +47,6 @@ class Reflector:
     free_fit: CylinderFit
     coherence: float
     fit: CylinderFit | None = None  # at the line's velocity (set by `refit_at_velocity`)
-    point_curve: bool = False  # stacked along a point's curve at a migrated spot, not fitted (see spots.py)
 
 
 def line_table(prep: PreparedBScan, candidates: Sequence[ApexCandidate]) -> TravelTable | None:
@@ -220,10 +219,10 @@ def curve_coherences(prep: PreparedBScan, picks: Sequence[Picks], fits: Sequence
         row[: len(c)] = c
     x0, depth, radius, v = (np.array([[getattr(f, k)] for f in fits]) for k in ("x0_m", "depth_m", "radius_m", "v"))
     times = cylinder_time(prep.x_m[at], x0, depth, radius, v, prep.antenna_height_m, prep.tx_rx_offset_m)
-    return [coherence_along(prep, c, t[: len(c)]) if len(c) >= 2 else 0.0 for c, t in zip(cols, times, strict=True)]
+    return [_coherence_along(prep, c, t[: len(c)]) if len(c) >= 2 else 0.0 for c, t in zip(cols, times, strict=True)]
 
 
-def coherence_along(prep: PreparedBScan, cols: NDArray[np.intp], times: FloatArray) -> float:
+def _coherence_along(prep: PreparedBScan, cols: NDArray[np.intp], times: FloatArray) -> float:
     """Semblance of the traces `cols` along the two-way `times`, in a ±quarter-period window."""
     half = max(1, round(0.25 * prep.period_ns / prep.dt_ns))
     s = np.rint((times + prep.t0_ns) / prep.dt_ns).astype(np.intp)[:, None] + np.arange(-half, half + 1)

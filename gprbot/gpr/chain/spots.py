@@ -8,14 +8,11 @@ maximum of the image's envelope (a layer is flat, not compact), stands out of it
 explained by a detection already made, and is not an echo of a stronger spot: right under it within a
 ringing or pipe-bottom delay, at twice its depth, or under the crossing flanks of two stronger neighbours.
 Its top comes from the spot; its radius from a cylinder fit seeded there when that fit agrees with the
-spot. Where that fit wanders (two pipes 10 cm apart at 900 MHz: each one's picks run onto the other's
-flank), the spot stands when both of its flanks stack along its own point-diffraction curve, and its
-radius is reported as not measured: anywhere up to what that stack allows.
+spot, else it is reported as not measured.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -29,9 +26,8 @@ from gprbot.gpr.chain.classify import MIN_FLANK_PICKS, ClassifiedDetection, repo
 from gprbot.gpr.chain.fit import R_MAX_M, CylinderFit
 from gprbot.gpr.chain.geometry import cylinder_time
 from gprbot.gpr.chain.peaks import peak_offset
-from gprbot.gpr.chain.picks import Picks
 from gprbot.gpr.chain.prepare import PreparedBScan
-from gprbot.gpr.chain.reflectors import Reflector, coherence_along, fit_each, refit_each_at_velocity
+from gprbot.gpr.chain.reflectors import Reflector, fit_each, refit_each_at_velocity
 
 FloatArray = NDArray[np.float64]
 
@@ -46,11 +42,6 @@ EXPLAINED_M = 0.03  # a spot this near a detection's top (plus its radius in x) 
 AGREE_PERIODS = 0.25  # a seeded fit whose top lies within this (as depth) of the spot measures its radius
 MIN_SPOT_COHERENCE = 0.4  # semblance along the seeded fit: geology's clutter focuses to spots too, but
 # its traces don't line up on a diffraction (FDTD dev and the real files: targets 0.42-0.79, clutter 0-0.33)
-# Where the seeded fit wanders off (its picks cross onto a neighbour's overlapping flank), the spot's own
-# diffraction curve is checked flank by flank instead: both flanks must stack along it.
-POINT_APERTURE_DEG = 40.0
-MIN_POINT_FLANK_COHERENCE = 0.5  # FDTD dev: such targets 0.57-0.82 on their weaker flank; clutter and echoes 0-0.53
-MIN_POINT_DEPTH_WAVELENGTHS = 1.0  # shallower, a rebar layer's crossing flanks and the direct wave's tail focus too
 
 
 @dataclass(frozen=True)
@@ -153,61 +144,8 @@ def spot_candidate(prep: PreparedBScan, spot: Spot, v: float) -> ApexCandidate |
     return ApexCandidate(spot.column, sample, t, amplitude, amplitude / prep.noise, polarity)
 
 
-def flank_coherences(prep: PreparedBScan, spot: Spot, v: float) -> tuple[float, float, int, int]:
-    """Semblance along the spot's own point-diffraction curve on each flank within POINT_APERTURE_DEG, and the
-    traces each flank spans: (left, right, n_left, n_right)."""
-    reach = spot.top_m * math.tan(math.radians(POINT_APERTURE_DEG))
-    columns = np.arange(len(prep.x_m))
-    out: list[float] = []
-    counts: list[int] = []
-    for side in (-1.0, 1.0):
-        offset = side * (prep.x_m - spot.x_m)
-        cols = columns[(offset >= 0.0) & (offset <= reach)]
-        counts.append(len(cols))
-        if len(cols) < MIN_FLANK_PICKS:
-            out.append(0.0)
-            continue
-        times = cylinder_time(prep.x_m[cols], spot.x_m, spot.top_m, 0.0, v, prep.antenna_height_m,
-                              prep.tx_rx_offset_m)
-        out.append(coherence_along(prep, cols, times))
-    return out[0], out[1], counts[0], counts[1]
-
-
-def point_radius_bound(prep: PreparedBScan, spot: Spot, v: float) -> float:
-    """The largest radius whose top arc stays within a quarter period of the point curve over the aperture.
-
-    Both flanks stack on a point's curve within ±a quarter period, so the cylinder may be anything from a
-    bar up to the radius whose curve leaves that window at the aperture's edge: 2R(1 − cos θ)/v there.
-    """
-    return 0.25 * prep.period_ns * v / (2.0 * (1.0 - math.cos(math.radians(POINT_APERTURE_DEG))))
-
-
-def _point_reflector(prep: PreparedBScan, spot: Spot, v: float) -> Reflector | None:
-    """A reflector at the spot from its own point curve, where both flanks stack along it; None otherwise."""
-    if spot.top_m < MIN_POINT_DEPTH_WAVELENGTHS * prep.wavelength_m(v):
-        return None
-    cand = spot_candidate(prep, spot, v)
-    if cand is None:
-        return None
-    left, right, n_left, n_right = flank_coherences(prep, spot, v)
-    if min(left, right) < MIN_POINT_FLANK_COHERENCE:
-        return None
-    bound = point_radius_bound(prep, spot, v)
-    reach = spot.top_m * math.tan(math.radians(POINT_APERTURE_DEG))
-    cols = np.nonzero(np.abs(prep.x_m - spot.x_m) <= reach)[0]
-    times = cylinder_time(prep.x_m[cols], spot.x_m, spot.top_m, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)
-    amplitude = prep.envelope[cols, np.clip(np.rint((times + prep.t0_ns) / prep.dt_ns).astype(np.intp), 0,
-                                            prep.data.shape[1] - 1)]
-    # The curve the flanks were stacked on, with the envelope read along it: what the check rests on.
-    picks = Picks(cand, prep.x_m[cols], times, np.asarray(amplitude, dtype=np.float64), n_left - 1, n_right - 1)
-    fit = CylinderFit(spot.x_m, spot.top_m, 0.0, v, prep.dx_m, 0.5 * v * 0.25 * prep.period_ns, bound, 0.0,
-                      0.0, len(cols))
-    return Reflector(cand, picks, fit, min(left, right), fit, point_curve=True)
-
-
 def _seeded_all(prep: PreparedBScan, spots: Sequence[Spot], v: float) -> list[Reflector | None]:
-    """Each spot's cylinder fit seeded there, kept when it lands on the spot (its radius is then measured);
-    else its point curve where both flanks stack along it (radius 0 fitted, not measured)."""
+    """Each spot's cylinder fit seeded there, kept when it lands on the spot (its radius is then measured)."""
     cands = [spot_candidate(prep, spot, v) for spot in spots]
     index = [k for k, c in enumerate(cands) if c is not None]
     fitted = fit_each(prep, [c for c in cands if c is not None])
@@ -220,7 +158,7 @@ def _seeded_all(prep: PreparedBScan, spots: Sequence[Spot], v: float) -> list[Re
         if r is not None and r.fit is not None and abs(r.fit.top_m - spot.top_m) <= agree \
                 and abs(r.fit.x0_m - spot.x_m) <= agree:
             out[k] = r
-    return [r if r is not None else _point_reflector(prep, spot, v) for spot, r in zip(spots, out, strict=True)]
+    return out
 
 
 def _spot_detection(prep: PreparedBScan, spot: Spot, seeded: Reflector | None, v: float) -> ClassifiedDetection | None:
@@ -234,8 +172,6 @@ def _spot_detection(prep: PreparedBScan, spot: Spot, seeded: Reflector | None, v
     f = seeded.fit
     # The spot places the top (migration is robust where flanks overlap); the fit measures the radius.
     radius, sigma, supported = reported_radius(f)
-    if seeded.point_curve:  # the point curve: the radius lies anywhere up to its bound
-        radius = sigma = 0.5 * f.sigma_radius_m
     fit = CylinderFit(spot.x_m, spot.top_m, radius, v, f.sigma_x0_m, f.sigma_top_m, sigma, 0.0, f.rms_ns, f.n_picks)
     contrast: Literal["slower", "faster"] = "faster" if seeded.candidate.polarity == prep.direct_polarity else "slower"
     confidence = float(min(1.0, spot.focus) * min(1.0, seeded.coherence / 0.5)
