@@ -21,6 +21,7 @@ from gprbot.errors import GprbotError, UsageError
 if TYPE_CHECKING:
     from gprbot.apps.offline_demo import DemoResult
     from gprbot.config import Config
+    from gprbot.gpr.chain.calibrate import KnownTop
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -122,6 +123,17 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _known_top(text: str) -> KnownTop:
+    """--known-top X:DEPTH, in metres."""
+    from gprbot.gpr.chain.calibrate import KnownTop
+
+    try:
+        x, depth = (float(part) for part in text.split(":"))
+        return KnownTop(x, depth)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected X:DEPTH in metres, e.g. 0.55:0.08 (got {text!r}; {exc})") from exc
+
+
 def _cmd_interpret(args: argparse.Namespace) -> int:
     from gprbot.apps.interpret_file import interpret_file
 
@@ -136,7 +148,7 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
     out = out or default_out_dir(Path(args.file), config)
     report = interpret_file(
         Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing, args.allow_partial,
-        height_m=args.height, offset_m=args.offset, config=config,
+        height_m=args.height, offset_m=args.offset, config=config, known_top=args.known_top,
     )
     print(json.dumps(interpret_file_json(out), indent=2) if args.json else report)
     return 0
@@ -265,7 +277,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     interp = sub.add_parser("interpret", help="interpret one B-scan (any GPR file `info` reads) into pipe detections")
     interp.add_argument("file")
-    interp.add_argument("--velocity", type=float, help="wave velocity in m/ns (default: estimated)")
+    velocity = interp.add_mutually_exclusive_group()
+    velocity.add_argument("--velocity", type=float, help="wave velocity in m/ns (default: estimated)")
+    velocity.add_argument("--known-top", type=_known_top, metavar="X:DEPTH",
+                          help="calibrate the velocity on a target whose top lies DEPTH m below the surface at "
+                               "X m along the line (a cover meter reading, a core): e.g. 0.55:0.08")
     interp.add_argument("--channel", type=int, default=0, help="channel of a multi-channel file")
     interp.add_argument("--allow-partial", action="store_true", help="drop a trailing partial scan (a cut file)")
     interp.add_argument("--frequency", type=float, help="antenna centre frequency in MHz (default: from header)")

@@ -296,3 +296,15 @@ def test_a_pipes_radius_is_the_surveys_where_it_has_one() -> None:
         assert d.radius_m == 0.05 and d.depth_m == pytest.approx(d.fit.top_m + 0.05)
 
 
+
+
+def test_a_known_top_gives_the_velocity_its_apex_time_needs() -> None:
+    from gprbot.gpr.chain.calibrate import KnownTop, velocity_for
+
+    line = _line([SyntheticTarget(0.8, 0.25, 0.03, 1.0), SyntheticTarget(0.8, 0.45, 0.03, 0.4)])  # and an echo
+    result = interpret(line, GPR, known_top=KnownTop(0.8, 0.22))
+    assert result.velocity_source == "calibrated" and result.velocity == pytest.approx(V, rel=0.03)
+    prep = result.prepared
+    t = float(cylinder_time(np.array([0.0]), 0.0, 0.22, 0.0, V, GPR.antenna_height_m, GPR.tx_rx_offset_m)[0])
+    assert velocity_for(prep, t, 0.22) == pytest.approx(V, rel=1e-6)
+    assert velocity_for(prep, 1e-3, 0.22) is None  # no velocity in bounds puts 22 cm that early

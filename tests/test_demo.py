@@ -46,6 +46,9 @@ def demos(tmp_path_factory: pytest.TempPathFactory) -> dict[str, DemoOutcome]:
         return {n: f.result() for n, f in futures.items()}
 
 
+# The first of these runs the shared fixture: four whole surveys, ~90 s on a quiet 2-core machine, more on
+# a loaded or slower one (the suite's 120 s per test would cut it off).
+@pytest.mark.timeout(900)
 @pytest.mark.parametrize("scene_name", builtin_scene_names())
 def test_demo_finds_every_pipe_within_bounds(scene_name: str, demos: dict[str, DemoOutcome]) -> None:
     demo = demos[scene_name]

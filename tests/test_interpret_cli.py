@@ -40,3 +40,34 @@ def test_interpret_reports_the_mesh_as_rebars_and_how_the_velocity_was_found(
 def test_interpret_refuses_an_impossible_antenna_geometry(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["interpret", str(SSMINI), "--height", "-0.1", "--out", str(tmp_path)]) == 2  # a usage error
     assert "--height" in capsys.readouterr().err
+
+
+FDTD_PIPE = Path(__file__).resolve().parents[1] / "validation" / "fdtd" / "data" / "metal_pipe_2600.DZT"
+FDTD_GEOMETRY = ["--height", "0.01", "--offset", "0.03"]  # its truth JSON's antenna
+FDTD_V = 0.12239  # m/ns; the pipe's top lies 8.5 cm down at x 0.22 m
+
+
+def test_a_known_top_calibrates_the_velocity_and_says_so(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["interpret", str(FDTD_PIPE), *FDTD_GEOMETRY, "--json"]
+    assert main([*args, "--known-top", "0.22:0.085", "--out", str(tmp_path / "k")]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["velocity_source"] == "calibrated" and "known top at x 0.220 m" in result["velocity_method"]
+    assert abs(result["velocity_m_per_ns"] / FDTD_V - 1.0) <= 0.05  # -2.8 % (the estimate alone: +6.5 %)
+    assert 0 < result["velocity_sigma_m_per_ns"] < 0.1 * FDTD_V
+    assert not any("--velocity" in n for n in result["notes"])  # the reader's advice is answered
+    (pipe,) = result["detections"]
+    assert abs(pipe["x_m"] - 0.22) <= 0.01 and abs(pipe["cover_m"] - 0.085) <= 0.01
+    # Nothing near the given position: the velocity is estimated as before, and a note says why.
+    assert main([*args, "--known-top", "0.02:0.085", "--out", str(tmp_path / "far")]) == 0
+    far = json.loads(capsys.readouterr().out)
+    assert far["velocity_source"] == "estimated" and any("known top was not used" in n for n in far["notes"])
+
+
+@pytest.mark.parametrize("bad", [["--known-top", "0.22"], ["--known-top", "0.22:-0.1"],
+                                 ["--known-top", "0.22:0.085", "--velocity", "0.1"]])
+def test_a_malformed_or_conflicting_known_top_is_a_usage_error(bad: list[str], tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["interpret", str(FDTD_PIPE), *bad, "--out", str(tmp_path)])
+    assert exit_.value.code == 2
+    assert "--known-top" in capsys.readouterr().err

@@ -12,6 +12,7 @@ from gprbot.config import Config, GprConfig, InterpretationConfig, load_config
 from gprbot.errors import DataFormatError, UsageError
 from gprbot.gpr.antennas import GSSI_ANTENNAS, antenna_frequency_mhz, check_frequency_mhz
 from gprbot.gpr.bscan import BScan, CrossSection
+from gprbot.gpr.chain.calibrate import KnownTop
 from gprbot.gpr.chain.classify import ClassifiedDetection
 from gprbot.gpr.chain.run import interpret
 from gprbot.gpr.formats import Radargram, read_radargram
@@ -132,6 +133,7 @@ def interpret_file(
     height_m: float | None = None,
     offset_m: float | None = None,
     config: Config | None = None,
+    known_top: KnownTop | None = None,
 ) -> str:
     """Interpret a GPR file of any format, write detections.json and PNGs, and return a printable report.
 
@@ -143,7 +145,8 @@ def interpret_file(
     cfg = config or load_config()
     bscan, rg = file_bscan(path, channel, spacing_m, allow_partial)
     # A reader's advice to pass an option the user has passed is noise.
-    given = {"--spacing": spacing_m, "--frequency": frequency_mhz, "--velocity": velocity}
+    given = {"--spacing": spacing_m, "--frequency": frequency_mhz,
+             "--velocity": velocity if velocity is not None else known_top}
     notes = [w for w in rg.warnings if not any(opt in w and value is not None for opt, value in given.items())]
     gpr, geometry_origin = _antenna_geometry(gpr_config_for(rg, cfg.gpr, frequency_mhz), height_m, offset_m)
     eps_r = float(rg.header.get("eps_r") or 0.0) if rg.source_format == "dzt" else 0.0
@@ -151,7 +154,7 @@ def interpret_file(
     out = out_dir or default_out_dir(path, cfg)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback)
+    result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback, known_top=known_top)
     notes += list(result.notes)
     method = cfg.interpretation.method
     section = result.section
@@ -194,6 +197,7 @@ def interpret_file(
         },
     )
     v_text = {"given": "given", "estimated": f"estimated ±{result.velocity_sigma:.4f}, {result.velocity_method}",
+              "calibrated": f"±{result.velocity_sigma:.4f}, {result.velocity_method}",
               "fallback": "not estimated"}[result.velocity_source]
     write_bscan_png(out / "bscan.png", shown_bscan(bscan, gpr, prep.t0_ns), result.velocity,
                     v_text, title=path.name, site_frame=False)

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
+from gprbot.gpr.chain.calibrate import SEARCH_M, KnownTop, calibrated_velocity
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
@@ -52,7 +53,7 @@ class Interpretation:
     reflectors: tuple[Reflector, ...]
     velocity: float
     velocity_sigma: float
-    velocity_source: Literal["given", "estimated", "fallback"]
+    velocity_source: Literal["given", "calibrated", "estimated", "fallback"]
     velocity_method: str
     detections: tuple[ClassifiedDetection, ...]
     section: CrossSection
@@ -151,9 +152,10 @@ def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v
 def interpret(
     bscan: BScan, gpr: GprConfig, velocity_m_per_ns: float | None = None, *,
     fallback_velocity_m_per_ns: float | None = None, depth_max_m: float | None = None,
-    hint_at: Callable[[float], SurveyHint] | None = None,
+    hint_at: Callable[[float], SurveyHint] | None = None, known_top: KnownTop | None = None,
 ) -> Interpretation:
-    """Interpret one B-scan: the velocity given, else estimated from its hyperbolas, else the fallback.
+    """Interpret one B-scan: the velocity given, else calibrated on a known top, else estimated from its
+    hyperbolas, else the fallback.
 
     `hint_at(x)` is what a survey's other lines say of a pipe whose apex lies at along-track x. An oblique
     pipe's hyperbola along the line is the right-angle one stretched by 1/sin: it is fitted at v/sin and
@@ -168,9 +170,18 @@ def interpret(
         notes.append(f"time zero {prep.t0_ns:.2f} ns from the {prep.t0_method}")
     candidates = apex_candidates(prep)
     reflectors = fit_reflectors(prep, candidates)
-    source: Literal["given", "estimated", "fallback"]
+    source: Literal["given", "calibrated", "estimated", "fallback"]
+    calibrated = None
+    if known_top is not None and velocity_m_per_ns is None:
+        calibrated = calibrated_velocity(prep, reflectors, known_top)
+        if calibrated is None:
+            notes.append(f"no hyperbola within {100 * SEARCH_M:.0f} cm of x {known_top.x_m:.3f} m whose apex a depth "
+                         f"of {100 * known_top.top_m:.1f} cm explains: the known top was not used; check its "
+                         "position (metres from the first trace) and depth")
     if velocity_m_per_ns is not None:
         v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
+    elif calibrated is not None:
+        v, sigma, source, how = calibrated.v, calibrated.sigma, "calibrated", calibrated.method
     else:
         est: VelocityEstimate | None = estimate_velocity(prep, reflectors)
         if est is not None:

@@ -1,0 +1,94 @@
+"""The velocity from one target whose top depth the user knows (a cover meter reading, a core, a drawing).
+
+One hyperbola cannot give the velocity to a few per cent when its radius is unknown: a velocity 5 % off
+fits the curve as well with another radius and top (`validation.hyperbola_signatures`: within 0.015
+periods on every FDTD dev pipe). Its apex time is measured, though, and so is the depth of its top at any
+velocity; a known cover therefore fixes the velocity: the one at which the refracted two-way time from
+the antenna to that depth (the antenna's height and Tx-Rx offset as configured) equals the apex time.
+This is how GPR users calibrate depths on site.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from gprbot.gpr.chain.fit import PICK_STD_PERIODS, V_BOUNDS, CylinderFit
+from gprbot.gpr.chain.geometry import cylinder_time
+from gprbot.gpr.chain.prepare import PreparedBScan
+from gprbot.gpr.chain.reflectors import Reflector
+from gprbot.gpr.chain.velocity import VelocityEstimate
+
+SEARCH_M = 0.05  # a hyperbola whose apex lies this far from the given position is that target
+NEAR_M = 0.02  # searched first: a cover meter places a bar to a centimetre or two
+BISECTIONS = 60
+TIME_ZERO_PERIODS = 0.1
+
+
+@dataclass(frozen=True)
+class KnownTop:
+    """A target's along-track position and the depth of its top below the surface (m), and how well known."""
+
+    x_m: float
+    top_m: float
+    tolerance_m: float = 0.005
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.x_m) and math.isfinite(self.top_m) and self.top_m > 0.0):
+            raise ValueError(f"a known top needs a finite position and a depth > 0 m (got x {self.x_m}, "
+                             f"depth {self.top_m})")
+
+
+def apex_time(prep: PreparedBScan, fit: CylinderFit) -> float:
+    """Two-way time (ns after time zero) of a fitted curve at its apex."""
+    x = np.array([fit.x0_m])
+    return float(cylinder_time(x, fit.x0_m, fit.depth_m, fit.radius_m, fit.v, prep.antenna_height_m,
+                               prep.tx_rx_offset_m)[0])
+
+
+def velocity_for(prep: PreparedBScan, t_ns: float, top_m: float) -> float | None:
+    """The velocity at which a top `top_m` deep arrives at `t_ns`; None where no velocity in bounds does."""
+    x = np.array([0.0])
+
+    def time_at(v: float) -> float:
+        return float(cylinder_time(x, 0.0, top_m, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)[0])
+
+    lo, hi = V_BOUNDS
+    if not time_at(hi) <= t_ns <= time_at(lo):  # the time falls as the velocity grows
+        return None
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if time_at(mid) > t_ns else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def calibrated_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop
+                        ) -> VelocityEstimate | None:
+    """The velocity that puts the hyperbola nearest `known.x_m` at the known depth; None without one there."""
+    # The target's top is the earliest apex at its position: under it lie its echoes (ringing, a pipe's
+    # bottom, multiples: FDTD dev, the nearest apex was an echo on 3 of 20 scenes). A neighbour a few
+    # centimetres aside may be earlier, so the closest window that holds an apex is searched first.
+    for window in (NEAR_M, SEARCH_M):
+        near = [r for r in reflectors if abs(r.free_fit.x0_m - known.x_m) <= window]
+        if near:
+            break
+    else:
+        return None
+    r = min(near, key=lambda r: apex_time(prep, r.free_fit))
+    t = apex_time(prep, r.free_fit)
+    v = velocity_for(prep, t, known.top_m)
+    if v is None:
+        return None
+    # One-sigma: the apex time to a pick's error and time zero's (the direct wave's envelope peak, less the
+    # air path, lies 30-130 ps before the source peak on the FDTD dev half: about a tenth of a period), the
+    # depth to the user's tolerance. On a shallow top these dominate, and the interval says so.
+    sigma_t = math.hypot(max(PICK_STD_PERIODS * prep.period_ns, 0.5 * prep.dt_ns), TIME_ZERO_PERIODS * prep.period_ns)
+    spread = [velocity_for(prep, t + dt, known.top_m + dz) for dt, dz in
+              ((sigma_t, 0.0), (0.0, known.tolerance_m))]
+    sigma = math.sqrt(sum((s - v) ** 2 for s in spread if s is not None))
+    how = (f"calibrated on the known top at x {known.x_m:.3f} m, {100 * known.top_m:.1f} cm deep "
+           f"(hyperbola at x {r.free_fit.x0_m:.3f} m, apex {t:.3f} ns after time zero)")
+    return VelocityEstimate(v, sigma, 1, how)
