@@ -148,7 +148,7 @@ def _cmd_interpret(args: argparse.Namespace) -> int:
     out = out or default_out_dir(Path(args.file), config)
     report = interpret_file(
         Path(args.file), out, args.velocity, args.channel, args.frequency, args.spacing, args.allow_partial,
-        height_m=args.height, offset_m=args.offset, config=config, known_top=args.known_top,
+        height_m=args.height, offset_m=args.offset, config=config, known_tops=args.known_top or (),
     )
     print(json.dumps(interpret_file_json(out), indent=2) if args.json else report)
     return 0
@@ -279,9 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
     interp.add_argument("file")
     velocity = interp.add_mutually_exclusive_group()
     velocity.add_argument("--velocity", type=float, help="wave velocity in m/ns (default: estimated)")
-    velocity.add_argument("--known-top", type=_known_top, metavar="X:DEPTH",
+    velocity.add_argument("--known-top", type=_known_top, metavar="X:DEPTH", action="append",
                           help="calibrate the velocity on a target whose top lies DEPTH m below the surface at "
-                               "X m along the line (a cover meter reading, a core): e.g. 0.55:0.08")
+                               "X m along the line (a cover meter reading, a core): e.g. 0.55:0.08; twice, at "
+                               "depths two periods apart in time, it fixes time zero too")
     interp.add_argument("--channel", type=int, default=0, help="channel of a multi-channel file")
     interp.add_argument("--allow-partial", action="store_true", help="drop a trailing partial scan (a cut file)")
     interp.add_argument("--frequency", type=float, help="antenna centre frequency in MHz (default: from header)")

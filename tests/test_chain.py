@@ -302,9 +302,26 @@ def test_a_known_top_gives_the_velocity_its_apex_time_needs() -> None:
     from gprbot.gpr.chain.calibrate import KnownTop, velocity_for
 
     line = _line([SyntheticTarget(0.8, 0.25, 0.03, 1.0), SyntheticTarget(0.8, 0.45, 0.03, 0.4)])  # and an echo
-    result = interpret(line, GPR, known_top=KnownTop(0.8, 0.22))
+    result = interpret(line, GPR, known_tops=[KnownTop(0.8, 0.22)])
     assert result.velocity_source == "calibrated" and result.velocity == pytest.approx(V, rel=0.03)
     prep = result.prepared
     t = float(cylinder_time(np.array([0.0]), 0.0, 0.22, 0.0, V, GPR.antenna_height_m, GPR.tx_rx_offset_m)[0])
     assert velocity_for(prep, t, 0.22) == pytest.approx(V, rel=1e-6)
     assert velocity_for(prep, 1e-3, 0.22) is None  # no velocity in bounds puts 22 cm that early
+
+
+def test_two_known_tops_fix_the_velocity_and_time_zero_where_one_cannot() -> None:
+    from gprbot.gpr.chain.calibrate import KnownTop
+
+    late = replace(_line([SyntheticTarget(0.5, 0.12, 0.01, 1.0), SyntheticTarget(1.5, 0.32, 0.01, 1.0)]),
+                   t0_ns=1.0 - 0.15)  # time zero given 0.15 ns early: every apex reads late
+    shallow, deep = KnownTop(0.5, 0.11), KnownTop(1.5, 0.31)
+    one = interpret(late, GPR, known_tops=[shallow])
+    assert one.velocity < 0.95 * V  # a late apex reads as a slow velocity
+    two = interpret(late, GPR, known_tops=[shallow, deep])
+    assert two.velocity_source == "calibrated" and "2 known tops" in two.velocity_method
+    assert two.velocity == pytest.approx(V, rel=0.02)
+    assert two.prepared.t0_ns == pytest.approx(1.0, abs=0.03) and "moved" in two.prepared.t0_method
+    pipes = sorted((d.x_m, d.fit.top_m) for d in two.pipes)
+    assert [round(x, 1) for x, _ in pipes] == [0.5, 1.5]
+    assert all(abs(top - want) <= 0.005 for (_, top), want in zip(pipes, (0.11, 0.31), strict=True))

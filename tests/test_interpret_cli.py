@@ -60,7 +60,8 @@ def test_a_known_top_calibrates_the_velocity_and_says_so(tmp_path: Path, capsys:
     # Nothing near the given position: the velocity is estimated as before, and a note says why.
     assert main([*args, "--known-top", "0.02:0.085", "--out", str(tmp_path / "far")]) == 0
     far = json.loads(capsys.readouterr().out)
-    assert far["velocity_source"] == "estimated" and any("known top was not used" in n for n in far["notes"])
+    assert far["velocity_source"] == "estimated" and any("the known top there" in n and "was not used" in n
+                                                         for n in far["notes"])
 
 
 @pytest.mark.parametrize("bad", [["--known-top", "0.22"], ["--known-top", "0.22:-0.1"],
@@ -71,3 +72,13 @@ def test_a_malformed_or_conflicting_known_top_is_a_usage_error(bad: list[str], t
         main(["interpret", str(FDTD_PIPE), *bad, "--out", str(tmp_path)])
     assert exit_.value.code == 2
     assert "--known-top" in capsys.readouterr().err
+
+
+def test_two_known_tops_calibrate_velocity_and_time_zero(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = FDTD_PIPE.with_name("overlapping_flanks_2000.DZT")  # tops 6.5 cm at x 0.2 m and 16 cm at x 0.3 m
+    assert main(["interpret", str(scene), "--height", "0.01", "--offset", "0.032", "--json", "--out", str(tmp_path),
+                 "--known-top", "0.2:0.065", "--known-top", "0.3:0.16"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["velocity_source"] == "calibrated" and "2 known tops" in result["velocity_method"]
+    assert abs(result["velocity_m_per_ns"] / 0.12239 - 1.0) <= 0.03  # +0.8 % (either top alone: -10 and -4 %)
+    assert "moved" in result["time_zero_from"]

@@ -30,10 +30,10 @@ class Calibration:
     note: str
 
 
-def _scored(case: Case, known: KnownTop | None) -> tuple[float, str, Score]:
+def _scored(case: Case, known: tuple[KnownTop, ...]) -> tuple[float, str, Score]:
     """(velocity, its source, the score) of the chain on one scene with or without a known top."""
     bscan, gpr = case.load()
-    r = interpret(bscan, gpr, None, known_top=known)
+    r = interpret(bscan, gpr, None, known_tops=known)
     found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in r.detections)
     return r.velocity, r.velocity_source, score(found, case.targets, case.tolerance_m)
 
@@ -46,7 +46,7 @@ def calibrations(case: Case) -> list[Calibration]:
         if t.depth_m is None or t.radius_m is None:
             continue
         top = t.depth_m - t.radius_m
-        v, source, _ = _scored(case, KnownTop(t.x_m, top))
+        v, source, _ = _scored(case, (KnownTop(t.x_m, top),))
         error = v / case.velocity - 1.0 if source == "calibrated" else None
         out.append(Calibration(case.name, t.kind, t.x_m, top, error, source))
     return out
@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
                     key=lambda t: t.x_m)
         assert first.depth_m is not None and first.radius_m is not None
         cells = []
-        for label, known in (("estimated", None), ("calibrated", KnownTop(first.x_m, first.depth_m - first.radius_m))):
+        for label, known in (("estimated", ()), ("calibrated", (KnownTop(first.x_m, first.depth_m - first.radius_m),))):
             v, _, s = _scored(case, known)
             for k, n in enumerate((s.pipes, s.pipes_within, s.pipes_within_fine, s.tops_within_fine, s.false_pipes)):
                 totals[label][k] += n
@@ -92,7 +92,46 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{label}: within 3 cm {within}/{pipes}, within 1 cm {fine}/{pipes}, tops within 1 cm {tops}/{pipes}, "
               f"false pipes {false / len(cases):.2f} a scene", end="")
     print()
+    _two_tops(cases)
     return 0
+
+
+def _two_tops(cases: list[Case]) -> None:
+    """Scenes with targets at two depths: the shallowest and the deepest top known, against each alone."""
+    print("\nTwo known tops (the shallowest and the deepest target), against each alone:\n")
+    print("| scene | tops cm | v err, two | time zero moved | v err, shallow alone | v err, deep alone |"
+          " two: within 3 cm / 1 cm / tops / false |\n|---|---|---|---|---|---|---|")
+    two_errors, alone_errors = [], []
+    for case in cases:
+        assert case.velocity is not None
+        known = [t for t in case.targets if t.depth_m is not None and t.radius_m is not None]
+        if len(known) < 2:
+            continue
+        ends = sorted(known, key=lambda t: t.depth_m - t.radius_m)  # type: ignore[operator]
+        tops = tuple(KnownTop(t.x_m, t.depth_m - t.radius_m) for t in (ends[0], ends[-1]))  # type: ignore[operator]
+        if tops[1].top_m - tops[0].top_m < 0.05:
+            continue
+        bscan, gpr = case.load()
+        r = interpret(bscan, gpr, None, known_tops=tops)
+        two_point = r.velocity_source == "calibrated" and "known tops" in r.velocity_method
+        found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in r.detections)
+        s = score(found, case.targets, case.tolerance_m)
+        errs = []
+        for k in tops:
+            v, source, _ = _scored(case, (k,))
+            errs.append(f"{100 * (v / case.velocity - 1):+.1f} %" if source == "calibrated" else "not used")
+            if source == "calibrated":
+                alone_errors.append(abs(v / case.velocity - 1))
+        err = f"{100 * (r.velocity / case.velocity - 1):+.1f} %" if two_point else "not two-point"
+        if two_point:
+            two_errors.append(abs(r.velocity / case.velocity - 1))
+        moved = r.prepared.t0_method.split("moved ")[-1].split(" by")[0] if "moved" in r.prepared.t0_method else "–"
+        print(f"| {case.name} | {100 * tops[0].top_m:.1f}, {100 * tops[1].top_m:.1f} | {err} | {moved} | {errs[0]} | "
+              f"{errs[1]} | {s.pipes_within}/{s.pipes} / {s.pipes_within_fine}/{s.pipes} / {s.tops_within_fine}/"
+              f"{s.pipes} / {s.false_pipes} |", flush=True)
+    if two_errors:
+        print(f"\ntwo tops: median |velocity error| {100 * statistics.median(two_errors):.1f} % on {len(two_errors)} "
+              f"scenes; each alone: {100 * statistics.median(alone_errors):.1f} % on {len(alone_errors)} calibrations")
 
 
 if __name__ == "__main__":

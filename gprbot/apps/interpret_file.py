@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -133,7 +134,7 @@ def interpret_file(
     height_m: float | None = None,
     offset_m: float | None = None,
     config: Config | None = None,
-    known_top: KnownTop | None = None,
+    known_tops: Sequence[KnownTop] = (),
 ) -> str:
     """Interpret a GPR file of any format, write detections.json and PNGs, and return a printable report.
 
@@ -146,7 +147,7 @@ def interpret_file(
     bscan, rg = file_bscan(path, channel, spacing_m, allow_partial)
     # A reader's advice to pass an option the user has passed is noise.
     given = {"--spacing": spacing_m, "--frequency": frequency_mhz,
-             "--velocity": velocity if velocity is not None else known_top}
+             "--velocity": velocity if velocity is not None else (known_tops or None)}
     notes = [w for w in rg.warnings if not any(opt in w and value is not None for opt, value in given.items())]
     gpr, geometry_origin = _antenna_geometry(gpr_config_for(rg, cfg.gpr, frequency_mhz), height_m, offset_m)
     eps_r = float(rg.header.get("eps_r") or 0.0) if rg.source_format == "dzt" else 0.0
@@ -154,7 +155,7 @@ def interpret_file(
     out = out_dir or default_out_dir(path, cfg)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback, known_top=known_top)
+    result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback, known_tops=known_tops)
     notes += list(result.notes)
     method = cfg.interpretation.method
     section = result.section

@@ -26,6 +26,7 @@ SEARCH_M = 0.05  # a hyperbola whose apex lies this far from the given position 
 NEAR_M = 0.02  # searched first: a cover meter places a bar to a centimetre or two
 BISECTIONS = 60
 TIME_ZERO_PERIODS = 0.1
+MIN_SPAN_PERIODS = 2.0  # two known tops closer in time than this do not separate the velocity from time zero
 
 
 @dataclass(frozen=True)
@@ -65,30 +66,106 @@ def velocity_for(prep: PreparedBScan, t_ns: float, top_m: float) -> float | None
     return 0.5 * (lo + hi)
 
 
-def calibrated_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop
-                        ) -> VelocityEstimate | None:
-    """The velocity that puts the hyperbola nearest `known.x_m` at the known depth; None without one there."""
-    # The target's top is the earliest apex at its position: under it lie its echoes (ringing, a pipe's
-    # bottom, multiples: FDTD dev, the nearest apex was an echo on 3 of 20 scenes). A neighbour a few
-    # centimetres aside may be earlier, so the closest window that holds an apex is searched first.
+def apex_near(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop) -> tuple[Reflector, float] | None:
+    """The hyperbola of the target at `known.x_m` and its apex time; None without one there.
+
+    The target's top is the earliest apex at its position: under it lie its echoes (ringing, a pipe's
+    bottom, multiples: FDTD dev, the nearest apex was an echo on 3 of 20 scenes). A neighbour a few
+    centimetres aside may be earlier, so the closest window that holds an apex is searched first.
+    """
     for window in (NEAR_M, SEARCH_M):
         near = [r for r in reflectors if abs(r.free_fit.x0_m - known.x_m) <= window]
         if near:
-            break
-    else:
+            r = min(near, key=lambda r: apex_time(prep, r.free_fit))
+            return r, apex_time(prep, r.free_fit)
+    return None
+
+
+def _pick_sigma(prep: PreparedBScan) -> float:
+    """One pick's timing error (ns)."""
+    return max(PICK_STD_PERIODS * prep.period_ns, 0.5 * prep.dt_ns)
+
+
+def calibrated_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop
+                        ) -> VelocityEstimate | None:
+    """The velocity that puts the hyperbola at `known.x_m` at the known depth; None without one there."""
+    found = apex_near(prep, reflectors, known)
+    if found is None:
         return None
-    r = min(near, key=lambda r: apex_time(prep, r.free_fit))
-    t = apex_time(prep, r.free_fit)
+    r, t = found
     v = velocity_for(prep, t, known.top_m)
     if v is None:
         return None
     # One-sigma: the apex time to a pick's error and time zero's (the direct wave's envelope peak, less the
     # air path, lies 30-130 ps before the source peak on the FDTD dev half: about a tenth of a period), the
     # depth to the user's tolerance. On a shallow top these dominate, and the interval says so.
-    sigma_t = math.hypot(max(PICK_STD_PERIODS * prep.period_ns, 0.5 * prep.dt_ns), TIME_ZERO_PERIODS * prep.period_ns)
+    sigma_t = math.hypot(_pick_sigma(prep), TIME_ZERO_PERIODS * prep.period_ns)
     spread = [velocity_for(prep, t + dt, known.top_m + dz) for dt, dz in
               ((sigma_t, 0.0), (0.0, known.tolerance_m))]
     sigma = math.sqrt(sum((s - v) ** 2 for s in spread if s is not None))
     how = (f"calibrated on the known top at x {known.x_m:.3f} m, {100 * known.top_m:.1f} cm deep "
            f"(hyperbola at x {r.free_fit.x0_m:.3f} m, apex {t:.3f} ns after time zero)")
     return VelocityEstimate(v, sigma, 1, how)
+
+
+@dataclass(frozen=True)
+class TwoPointCalibration:
+    """Velocity (m/ns) and its 1-sigma, and the shift of time zero (ns) that known tops at two depths fix."""
+
+    v: float
+    sigma: float
+    t0_shift_ns: float
+    method: str
+
+
+def _joint_fit(prep: PreparedBScan, times: Sequence[float], tops: Sequence[float]) -> tuple[float, float] | None:
+    """(velocity, time shift) minimising the apex times' misfit to the refracted times of the known tops."""
+    x = np.array([0.0])
+
+    def shift_and_misfit(v: float) -> tuple[float, float]:
+        model = np.array([cylinder_time(x, 0.0, d, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)[0]
+                          for d in tops])
+        residual = np.asarray(times) - model
+        shift = float(residual.mean())
+        return shift, float(np.sum((residual - shift) ** 2))
+
+    grid = np.geomspace(V_BOUNDS[0], V_BOUNDS[1], 400)
+    misfits = [shift_and_misfit(float(v))[1] for v in grid]
+    k = int(np.argmin(misfits))
+    if k in (0, len(grid) - 1):
+        return None  # no velocity in bounds explains the tops' spacing in time
+    lo, hi = float(grid[k - 1]), float(grid[k + 1])
+    for _ in range(BISECTIONS):  # golden-section search of the bracket
+        a, b = lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo)
+        lo, hi = (lo, b) if shift_and_misfit(a)[1] < shift_and_misfit(b)[1] else (a, hi)
+    v = 0.5 * (lo + hi)
+    return v, shift_and_misfit(v)[0]
+
+
+def two_point_calibration(prep: PreparedBScan, reflectors: Sequence[Reflector], known: Sequence[KnownTop]
+                          ) -> TwoPointCalibration | None:
+    """Velocity and time zero from known tops at least MIN_SPAN_PERIODS apart in time; None where fewer are found.
+
+    One known top cannot tell the velocity from a late apex (time zero and the wavelet's lag: the one-top
+    calibration reads 3-6 % slow on the FDTD dev half); two at different depths can, from their spacing in time.
+    """
+    found = [(k, apex_near(prep, reflectors, k)) for k in known]
+    pairs = [(k, a[1]) for k, a in found if a is not None]
+    if len(pairs) < 2:
+        return None
+    times = [t for _, t in pairs]
+    if max(times) - min(times) < MIN_SPAN_PERIODS * prep.period_ns:
+        return None
+    tops = [k.top_m for k, _ in pairs]
+    fit = _joint_fit(prep, times, tops)
+    if fit is None:
+        return None
+    v, shift = fit
+    # One-sigma from the spacing: a pick's error on each of the outermost, and the users' depth tolerances.
+    span = max(tops) - min(tops)
+    sigma_t = math.sqrt(2.0) * _pick_sigma(prep) / (max(times) - min(times))
+    sigma_d = math.hypot(*(k.tolerance_m for k, _ in pairs[:2])) / span
+    sigma = v * math.hypot(sigma_t, sigma_d)
+    how = (f"calibrated on {len(pairs)} known tops {100 * min(tops):.1f}-{100 * max(tops):.1f} cm deep "
+           f"(velocity from their spacing in time; time zero moved {1000 * shift:+.0f} ps)")
+    return TwoPointCalibration(v, sigma, shift, how)

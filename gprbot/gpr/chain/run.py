@@ -9,7 +9,7 @@ were made: wavelet and time zero come from the direct wave, the velocity from th
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -18,7 +18,13 @@ from numpy.typing import NDArray
 
 from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
-from gprbot.gpr.chain.calibrate import SEARCH_M, KnownTop, calibrated_velocity
+from gprbot.gpr.chain.calibrate import (
+    SEARCH_M,
+    KnownTop,
+    apex_near,
+    calibrated_velocity,
+    two_point_calibration,
+)
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
@@ -152,10 +158,10 @@ def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v
 def interpret(
     bscan: BScan, gpr: GprConfig, velocity_m_per_ns: float | None = None, *,
     fallback_velocity_m_per_ns: float | None = None, depth_max_m: float | None = None,
-    hint_at: Callable[[float], SurveyHint] | None = None, known_top: KnownTop | None = None,
+    hint_at: Callable[[float], SurveyHint] | None = None, known_tops: Sequence[KnownTop] = (),
 ) -> Interpretation:
-    """Interpret one B-scan: the velocity given, else calibrated on a known top, else estimated from its
-    hyperbolas, else the fallback.
+    """Interpret one B-scan: the velocity given, else calibrated on known tops (two at different depths fix
+    time zero too), else estimated from its hyperbolas, else the fallback.
 
     `hint_at(x)` is what a survey's other lines say of a pipe whose apex lies at along-track x. An oblique
     pipe's hyperbola along the line is the right-angle one stretched by 1/sin: it is fitted at v/sin and
@@ -172,12 +178,24 @@ def interpret(
     reflectors = fit_reflectors(prep, candidates)
     source: Literal["given", "calibrated", "estimated", "fallback"]
     calibrated = None
-    if known_top is not None and velocity_m_per_ns is None:
-        calibrated = calibrated_velocity(prep, reflectors, known_top)
-        if calibrated is None:
-            notes.append(f"no hyperbola within {100 * SEARCH_M:.0f} cm of x {known_top.x_m:.3f} m whose apex a depth "
-                         f"of {100 * known_top.top_m:.1f} cm explains: the known top was not used; check its "
-                         "position (metres from the first trace) and depth")
+    if known_tops and velocity_m_per_ns is None:
+        two = two_point_calibration(prep, reflectors, known_tops)
+        if two is not None:
+            prep = replace(prep, t0_ns=prep.t0_ns + two.t0_shift_ns, t0_method=f"{prep.t0_method}, moved "
+                           f"{1000 * two.t0_shift_ns:+.0f} ps by the known tops")
+            candidates = apex_candidates(prep)
+            reflectors = fit_reflectors(prep, candidates)
+            calibrated = VelocityEstimate(two.v, two.sigma, len(known_tops), two.method)
+        else:  # one top, or tops too close in time to separate time zero: the median of their single calibrations
+            singles = sorted((c for c in (calibrated_velocity(prep, reflectors, k) for k in known_tops)
+                              if c is not None), key=lambda c: c.v)
+            calibrated = singles[(len(singles) - 1) // 2] if singles else None
+        unused = [k for k in known_tops if apex_near(prep, reflectors, k) is None]
+        notes += [f"no hyperbola within {100 * SEARCH_M:.0f} cm of x {k.x_m:.3f} m: the known top there "
+                  f"({100 * k.top_m:.1f} cm) was not used; check its position (metres from the first trace)"
+                  for k in unused]
+        if calibrated is None and len(unused) < len(known_tops):
+            notes.append("no velocity in bounds puts the known top at its depth: it was not used")
     if velocity_m_per_ns is not None:
         v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
     elif calibrated is not None:
