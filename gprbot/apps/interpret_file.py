@@ -157,6 +157,11 @@ def interpret_file(
     start = time.perf_counter()
     result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback, known_tops=known_tops)
     notes += list(result.notes)
+    if result.velocity_source == "estimated":
+        # One hyperbola's curve cannot give the velocity to a few per cent while its radius is unknown
+        # (validation.hyperbola_signatures); a known cover can (validation.known_top).
+        notes.append("depths scale with the estimated velocity (FDTD yardstick: median error 11-15 %); a known cover "
+                     "calibrates it: --known-top X:DEPTH (median error 5-6 %)")
     method = cfg.interpretation.method
     section = result.section
     pipes = [_detection_json(d) for d in result.pipes]
