@@ -71,6 +71,7 @@ class Detection:
     depth_m: float
     radius_m: float
     score: float
+    radius_supported: bool = True  # False: the data do not measure it (the chain's `reported_radius`)
 
 
 @dataclass(frozen=True)
