@@ -62,6 +62,10 @@ def test_a_known_top_calibrates_the_velocity_and_says_so(tmp_path: Path, capsys:
     far = json.loads(capsys.readouterr().out)
     assert far["velocity_source"] == "estimated" and any("the known top there" in n and "was not used" in n
                                                          for n in far["notes"])
+    # A depth no velocity in bounds explains (5 m, not 5 cm): not used either, and said so.
+    assert main([*args, "--known-top", "0.22:5", "--out", str(tmp_path / "deep")]) == 0
+    deep = json.loads(capsys.readouterr().out)
+    assert deep["velocity_source"] == "estimated" and any("check the depth" in n for n in deep["notes"])
 
 
 @pytest.mark.parametrize("bad", [["--known-top", "0.22"], ["--known-top", "0.22:-0.1"],

@@ -27,6 +27,7 @@ from gprbot.gpr.chain.calibrate import (
 )
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
+from gprbot.gpr.chain.fit import V_BOUNDS
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.spots import find_spots, spot_detections, without_echoes_of
@@ -195,7 +196,9 @@ def interpret(
                   f"({100 * k.top_m:.1f} cm) was not used; check its position (metres from the first trace)"
                   for k in unused]
         if calibrated is None and len(unused) < len(known_tops):
-            notes.append("no velocity in bounds puts the known top at its depth: it was not used")
+            tops = ", ".join(f"{100 * k.top_m:.1f} cm at x {k.x_m:.3f} m" for k in known_tops if k not in unused)
+            notes.append(f"no velocity from {V_BOUNDS[0]} to {V_BOUNDS[1]} m/ns puts the hyperbola there at the known "
+                         f"depth ({tops}): not used; check the depth (metres below the surface to the target's top)")
     if velocity_m_per_ns is not None:
         v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
     elif calibrated is not None:
