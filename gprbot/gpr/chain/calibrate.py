@@ -5,7 +5,9 @@ fits the curve as well with another radius and top (`validation.hyperbola_signat
 periods on every FDTD dev pipe). Its apex time is measured, though, and so is the depth of its top at any
 velocity; a known cover therefore fixes the velocity: the one at which the refracted two-way time from
 the antenna to that depth (the antenna's height and Tx-Rx offset as configured) equals the apex time.
-This is how GPR users calibrate depths on site.
+This is how GPR users calibrate depths on site. One known top leaves the apex's own lag (time zero, the
+wavelet) in the velocity; two at depths well apart in time fix both: the velocity from their spacing,
+time zero from where they sit.
 """
 
 from __future__ import annotations
@@ -169,3 +171,29 @@ def two_point_calibration(prep: PreparedBScan, reflectors: Sequence[Reflector], 
     how = (f"calibrated on {len(pairs)} known tops {100 * min(tops):.1f}-{100 * max(tops):.1f} cm deep "
            f"(velocity from their spacing in time; time zero moved {1000 * shift:+.0f} ps)")
     return TwoPointCalibration(v, sigma, shift, how)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What known tops gave: the velocity (None: none used), the shift of time zero (ns), notes for the user."""
+
+    estimate: VelocityEstimate | None
+    t0_shift_ns: float
+    notes: tuple[str, ...]
+
+
+def calibrate(prep: PreparedBScan, reflectors: Sequence[Reflector], known: Sequence[KnownTop]) -> Calibration:
+    """The velocity from known tops: two apart in depth fix time zero too; else the median of single calibrations."""
+    unused = [k for k in known if apex_near(prep, reflectors, k) is None]
+    notes = [f"no hyperbola within {100 * SEARCH_M:.0f} cm of x {k.x_m:.3f} m: the known top there "
+             f"({100 * k.top_m:.1f} cm) was not used; check its position (metres from the first trace)" for k in unused]
+    two = two_point_calibration(prep, reflectors, known)
+    if two is not None:
+        return Calibration(VelocityEstimate(two.v, two.sigma, len(known), two.method), two.t0_shift_ns, tuple(notes))
+    singles = sorted((c for c in (calibrated_velocity(prep, reflectors, k) for k in known) if c is not None),
+                     key=lambda c: c.v)
+    if not singles and len(unused) < len(known):
+        tops = ", ".join(f"{100 * k.top_m:.1f} cm at x {k.x_m:.3f} m" for k in known if k not in unused)
+        notes.append(f"no velocity from {V_BOUNDS[0]} to {V_BOUNDS[1]} m/ns puts the hyperbola there at the known "
+                     f"depth ({tops}): not used; check the depth (metres below the surface to the target's top)")
+    return Calibration(singles[(len(singles) - 1) // 2] if singles else None, 0.0, tuple(notes))

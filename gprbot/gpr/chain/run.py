@@ -18,16 +18,9 @@ from numpy.typing import NDArray
 
 from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
-from gprbot.gpr.chain.calibrate import (
-    SEARCH_M,
-    KnownTop,
-    apex_near,
-    calibrated_velocity,
-    two_point_calibration,
-)
+from gprbot.gpr.chain.calibrate import KnownTop, calibrate
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
-from gprbot.gpr.chain.fit import V_BOUNDS
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.spots import find_spots, spot_detections, without_echoes_of
@@ -180,25 +173,14 @@ def interpret(
     source: Literal["given", "calibrated", "estimated", "fallback"]
     calibrated = None
     if known_tops and velocity_m_per_ns is None:
-        two = two_point_calibration(prep, reflectors, known_tops)
-        if two is not None:
-            prep = replace(prep, t0_ns=prep.t0_ns + two.t0_shift_ns, t0_method=f"{prep.t0_method}, moved "
-                           f"{1000 * two.t0_shift_ns:+.0f} ps by the known tops")
+        calibration = calibrate(prep, reflectors, known_tops)
+        notes += calibration.notes
+        calibrated = calibration.estimate
+        if calibration.t0_shift_ns:  # two tops fixed time zero too: the line is read again from it
+            prep = replace(prep, t0_ns=prep.t0_ns + calibration.t0_shift_ns, t0_method=f"{prep.t0_method}, moved "
+                           f"{1000 * calibration.t0_shift_ns:+.0f} ps by the known tops")
             candidates = apex_candidates(prep)
             reflectors = fit_reflectors(prep, candidates)
-            calibrated = VelocityEstimate(two.v, two.sigma, len(known_tops), two.method)
-        else:  # one top, or tops too close in time to separate time zero: the median of their single calibrations
-            singles = sorted((c for c in (calibrated_velocity(prep, reflectors, k) for k in known_tops)
-                              if c is not None), key=lambda c: c.v)
-            calibrated = singles[(len(singles) - 1) // 2] if singles else None
-        unused = [k for k in known_tops if apex_near(prep, reflectors, k) is None]
-        notes += [f"no hyperbola within {100 * SEARCH_M:.0f} cm of x {k.x_m:.3f} m: the known top there "
-                  f"({100 * k.top_m:.1f} cm) was not used; check its position (metres from the first trace)"
-                  for k in unused]
-        if calibrated is None and len(unused) < len(known_tops):
-            tops = ", ".join(f"{100 * k.top_m:.1f} cm at x {k.x_m:.3f} m" for k in known_tops if k not in unused)
-            notes.append(f"no velocity from {V_BOUNDS[0]} to {V_BOUNDS[1]} m/ns puts the hyperbola there at the known "
-                         f"depth ({tops}): not used; check the depth (metres below the surface to the target's top)")
     if velocity_m_per_ns is not None:
         v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
     elif calibrated is not None:
