@@ -296,8 +296,6 @@ def test_a_pipes_radius_is_the_surveys_where_it_has_one() -> None:
         assert d.radius_m == 0.05 and d.depth_m == pytest.approx(d.fit.top_m + 0.05)
 
 
-
-
 def test_a_known_top_gives_the_velocity_its_apex_time_needs() -> None:
     from gprbot.gpr.chain.calibrate import KnownTop, velocity_for
 

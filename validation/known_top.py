@@ -13,7 +13,7 @@ import statistics
 from dataclasses import dataclass
 
 from gprbot.gpr.chain.calibrate import KnownTop
-from gprbot.gpr.chain.run import interpret
+from gprbot.gpr.chain.run import Interpretation, interpret
 from validation.cases import Case, fdtd_cases
 from validation.scoring import Found, Score, score
 
@@ -30,12 +30,12 @@ class Calibration:
     note: str
 
 
-def _scored(case: Case, known: tuple[KnownTop, ...]) -> tuple[float, str, Score]:
-    """(velocity, its source, the score) of the chain on one scene with or without a known top."""
+def _scored(case: Case, known: tuple[KnownTop, ...]) -> tuple[Interpretation, Score]:
+    """The chain's interpretation of one scene with the known tops (or none), and its score."""
     bscan, gpr = case.load()
     r = interpret(bscan, gpr, None, known_tops=known)
     found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in r.detections)
-    return r.velocity, r.velocity_source, score(found, case.targets, case.tolerance_m)
+    return r, score(found, case.targets, case.tolerance_m)
 
 
 def calibrations(case: Case) -> list[Calibration]:
@@ -46,7 +46,8 @@ def calibrations(case: Case) -> list[Calibration]:
         if t.depth_m is None or t.radius_m is None:
             continue
         top = t.depth_m - t.radius_m
-        v, source, _ = _scored(case, (KnownTop(t.x_m, top),))
+        r, _ = _scored(case, (KnownTop(t.x_m, top),))
+        v, source = r.velocity, r.velocity_source
         error = v / case.velocity - 1.0 if source == "calibrated" else None
         out.append(Calibration(case.name, t.kind, t.x_m, top, error, source))
     return out
@@ -81,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         assert first.depth_m is not None and first.radius_m is not None
         cells = []
         for label, known in (("estimated", ()), ("calibrated", (KnownTop(first.x_m, first.depth_m - first.radius_m),))):
-            v, _, s = _scored(case, known)
+            r, s = _scored(case, known)
+            v = r.velocity
             for k, n in enumerate((s.pipes, s.pipes_within, s.pipes_within_fine, s.tops_within_fine, s.false_pipes)):
                 totals[label][k] += n
             cells.append((f"{100 * (v / case.velocity - 1):+.1f} %",
@@ -111,17 +113,15 @@ def _two_tops(cases: list[Case]) -> None:
         tops = tuple(KnownTop(t.x_m, t.depth_m - t.radius_m) for t in (ends[0], ends[-1]))  # type: ignore[operator]
         if tops[1].top_m - tops[0].top_m < 0.05:
             continue
-        bscan, gpr = case.load()
-        r = interpret(bscan, gpr, None, known_tops=tops)
+        r, s = _scored(case, tops)
         two_point = r.velocity_source == "calibrated" and "known tops" in r.velocity_method
-        found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in r.detections)
-        s = score(found, case.targets, case.tolerance_m)
         errs = []
         for k in tops:
-            v, source, _ = _scored(case, (k,))
-            errs.append(f"{100 * (v / case.velocity - 1):+.1f} %" if source == "calibrated" else "not used")
-            if source == "calibrated":
-                alone_errors.append(abs(v / case.velocity - 1))
+            alone, _ = _scored(case, (k,))
+            calibrated = alone.velocity_source == "calibrated"
+            errs.append(f"{100 * (alone.velocity / case.velocity - 1):+.1f} %" if calibrated else "not used")
+            if calibrated:
+                alone_errors.append(abs(alone.velocity / case.velocity - 1))
         err = f"{100 * (r.velocity / case.velocity - 1):+.1f} %" if two_point else "not two-point"
         if two_point:
             two_errors.append(abs(r.velocity / case.velocity - 1))

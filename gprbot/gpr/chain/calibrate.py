@@ -52,23 +52,34 @@ def apex_time(prep: PreparedBScan, fit: CylinderFit) -> float:
                                prep.tx_rx_offset_m)[0])
 
 
+def top_times(prep: PreparedBScan, tops_m: Sequence[float] | float, v: float) -> np.ndarray:
+    """Refracted two-way times (ns) from the antenna straight above to points `tops_m` deep, at velocity v."""
+    depths = np.asarray(tops_m, dtype=np.float64)
+    return np.asarray(cylinder_time(np.zeros_like(depths), 0.0, depths, 0.0, v, prep.antenna_height_m,
+                                    prep.tx_rx_offset_m))
+
+
 def velocity_for(prep: PreparedBScan, t_ns: float, top_m: float) -> float | None:
     """The velocity at which a top `top_m` deep arrives at `t_ns`; None where no velocity in bounds does."""
-    x = np.array([0.0])
-
-    def time_at(v: float) -> float:
-        return float(cylinder_time(x, 0.0, top_m, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)[0])
-
     lo, hi = V_BOUNDS
-    if not time_at(hi) <= t_ns <= time_at(lo):  # the time falls as the velocity grows
+    if not float(top_times(prep, top_m, hi)) <= t_ns <= float(top_times(prep, top_m, lo)):  # falls as v grows
         return None
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if time_at(mid) > t_ns else (lo, mid)
+        lo, hi = (mid, hi) if float(top_times(prep, top_m, mid)) > t_ns else (lo, mid)
     return 0.5 * (lo + hi)
 
 
-def apex_near(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop) -> tuple[Reflector, float] | None:
+@dataclass(frozen=True)
+class Apex:
+    """A known top and the hyperbola found at its position, with that hyperbola's apex time (ns)."""
+
+    known: KnownTop
+    reflector: Reflector
+    t_ns: float
+
+
+def apex_near(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop) -> Apex | None:
     """The hyperbola of the target at `known.x_m` and its apex time; None without one there.
 
     The target's top is the earliest apex at its position: under it lie its echoes (ringing, a pipe's
@@ -76,10 +87,10 @@ def apex_near(prep: PreparedBScan, reflectors: Sequence[Reflector], known: Known
     centimetres aside may be earlier, so the closest window that holds an apex is searched first.
     """
     for window in (NEAR_M, SEARCH_M):
-        near = [r for r in reflectors if abs(r.free_fit.x0_m - known.x_m) <= window]
+        near = [(apex_time(prep, r.free_fit), r) for r in reflectors if abs(r.free_fit.x0_m - known.x_m) <= window]
         if near:
-            r = min(near, key=lambda r: apex_time(prep, r.free_fit))
-            return r, apex_time(prep, r.free_fit)
+            t, r = min(near, key=lambda tr: tr[0])
+            return Apex(known, r, t)
     return None
 
 
@@ -88,13 +99,9 @@ def _pick_sigma(prep: PreparedBScan) -> float:
     return max(PICK_STD_PERIODS * prep.period_ns, 0.5 * prep.dt_ns)
 
 
-def calibrated_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop
-                        ) -> VelocityEstimate | None:
-    """The velocity that puts the hyperbola at `known.x_m` at the known depth; None without one there."""
-    found = apex_near(prep, reflectors, known)
-    if found is None:
-        return None
-    r, t = found
+def calibrated_velocity(prep: PreparedBScan, apex: Apex) -> VelocityEstimate | None:
+    """The velocity that puts the hyperbola at the known top's position at its depth; None where none in bounds does."""
+    known, t = apex.known, apex.t_ns
     v = velocity_for(prep, t, known.top_m)
     if v is None:
         return None
@@ -106,7 +113,7 @@ def calibrated_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector], kn
               ((sigma_t, 0.0), (0.0, known.tolerance_m))]
     sigma = math.sqrt(sum((s - v) ** 2 for s in spread if s is not None))
     how = (f"calibrated on the known top at x {known.x_m:.3f} m, {100 * known.top_m:.1f} cm deep "
-           f"(hyperbola at x {r.free_fit.x0_m:.3f} m, apex {t:.3f} ns after time zero)")
+           f"(hyperbola at x {apex.reflector.free_fit.x0_m:.3f} m, apex {t:.3f} ns after time zero)")
     return VelocityEstimate(v, sigma, 1, how)
 
 
@@ -122,12 +129,8 @@ class TwoPointCalibration:
 
 def _joint_fit(prep: PreparedBScan, times: Sequence[float], tops: Sequence[float]) -> tuple[float, float] | None:
     """(velocity, time shift) minimising the apex times' misfit to the refracted times of the known tops."""
-    x = np.array([0.0])
-
     def shift_and_misfit(v: float) -> tuple[float, float]:
-        model = np.array([cylinder_time(x, 0.0, d, 0.0, v, prep.antenna_height_m, prep.tx_rx_offset_m)[0]
-                          for d in tops])
-        residual = np.asarray(times) - model
+        residual = np.asarray(times) - top_times(prep, tops, v)
         shift = float(residual.mean())
         return shift, float(np.sum((residual - shift) ** 2))
 
@@ -144,21 +147,18 @@ def _joint_fit(prep: PreparedBScan, times: Sequence[float], tops: Sequence[float
     return v, shift_and_misfit(v)[0]
 
 
-def two_point_calibration(prep: PreparedBScan, reflectors: Sequence[Reflector], known: Sequence[KnownTop]
-                          ) -> TwoPointCalibration | None:
+def two_point_calibration(prep: PreparedBScan, apexes: Sequence[Apex]) -> TwoPointCalibration | None:
     """Velocity and time zero from known tops at least MIN_SPAN_PERIODS apart in time; None where fewer are found.
 
     One known top cannot tell the velocity from a late apex (time zero and the wavelet's lag: the one-top
     calibration reads 3-6 % slow on the FDTD dev half); two at different depths can, from their spacing in time.
     """
-    found = [(k, apex_near(prep, reflectors, k)) for k in known]
-    pairs = [(k, a[1]) for k, a in found if a is not None]
-    if len(pairs) < 2:
+    if len(apexes) < 2:
         return None
-    times = [t for _, t in pairs]
+    times = [a.t_ns for a in apexes]
     if max(times) - min(times) < MIN_SPAN_PERIODS * prep.period_ns:
         return None
-    tops = [k.top_m for k, _ in pairs]
+    tops = [a.known.top_m for a in apexes]
     fit = _joint_fit(prep, times, tops)
     if fit is None:
         return None
@@ -166,9 +166,9 @@ def two_point_calibration(prep: PreparedBScan, reflectors: Sequence[Reflector], 
     # One-sigma from the spacing: a pick's error on each of the outermost, and the users' depth tolerances.
     span = max(tops) - min(tops)
     sigma_t = math.sqrt(2.0) * _pick_sigma(prep) / (max(times) - min(times))
-    sigma_d = math.hypot(*(k.tolerance_m for k, _ in pairs[:2])) / span
+    sigma_d = math.hypot(*(a.known.tolerance_m for a in apexes[:2])) / span
     sigma = v * math.hypot(sigma_t, sigma_d)
-    how = (f"calibrated on {len(pairs)} known tops {100 * min(tops):.1f}-{100 * max(tops):.1f} cm deep "
+    how = (f"calibrated on {len(apexes)} known tops {100 * min(tops):.1f}-{100 * max(tops):.1f} cm deep "
            f"(velocity from their spacing in time; time zero moved {1000 * shift:+.0f} ps)")
     return TwoPointCalibration(v, sigma, shift, how)
 
@@ -184,16 +184,17 @@ class Calibration:
 
 def calibrate(prep: PreparedBScan, reflectors: Sequence[Reflector], known: Sequence[KnownTop]) -> Calibration:
     """The velocity from known tops: two apart in depth fix time zero too; else the median of single calibrations."""
-    unused = [k for k in known if apex_near(prep, reflectors, k) is None]
+    found = {k: apex_near(prep, reflectors, k) for k in known}
+    apexes = [a for a in found.values() if a is not None]
     notes = [f"no hyperbola within {100 * SEARCH_M:.0f} cm of x {k.x_m:.3f} m: the known top there "
-             f"({100 * k.top_m:.1f} cm) was not used; check its position (metres from the first trace)" for k in unused]
-    two = two_point_calibration(prep, reflectors, known)
+             f"({100 * k.top_m:.1f} cm) was not used; check its position (metres from the first trace)"
+             for k, a in found.items() if a is None]
+    two = two_point_calibration(prep, apexes)
     if two is not None:
         return Calibration(VelocityEstimate(two.v, two.sigma, len(known), two.method), two.t0_shift_ns, tuple(notes))
-    singles = sorted((c for c in (calibrated_velocity(prep, reflectors, k) for k in known) if c is not None),
-                     key=lambda c: c.v)
-    if not singles and len(unused) < len(known):
-        tops = ", ".join(f"{100 * k.top_m:.1f} cm at x {k.x_m:.3f} m" for k in known if k not in unused)
+    singles = sorted((c for c in (calibrated_velocity(prep, a) for a in apexes) if c is not None), key=lambda c: c.v)
+    if not singles and apexes:
+        tops = ", ".join(f"{100 * a.known.top_m:.1f} cm at x {a.known.x_m:.3f} m" for a in apexes)
         notes.append(f"no velocity from {V_BOUNDS[0]} to {V_BOUNDS[1]} m/ns puts the hyperbola there at the known "
                      f"depth ({tops}): not used; check the depth (metres below the surface to the target's top)")
     return Calibration(singles[(len(singles) - 1) // 2] if singles else None, 0.0, tuple(notes))
