@@ -12,6 +12,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 
@@ -37,12 +38,20 @@ LEGACY_MAX_LINE_M = 40.0
 Method = Callable[[BScan, GprConfig, "float | None"], Outcome]
 
 
-def run_chain(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
-    """The interpretation chain."""
+def run_chain(bscan: BScan, gpr: GprConfig, velocity: float | None,
+              radius_from: Literal["migrationnet", "fit"] | None = None) -> Outcome:
+    """The interpretation chain, its unmeasured radii from MigrationNet's mask or not as `radius_from` says
+    (None: as the product's default, `InterpretationConfig.radius_from`)."""
+    from gprbot.config import Config
     from gprbot.gpr.chain.run import interpret
+    from gprbot.gpr.preprocess import preprocess
+    from gprbot.infer.pipeline import migrationnet_sizer
 
+    interp = InterpretationConfig()
+    cfg = replace(Config(), gpr=gpr, interpretation=replace(interp, radius_from=radius_from or interp.radius_from))
     start = time.perf_counter()
-    result = interpret(bscan, gpr, velocity)
+    sizer = migrationnet_sizer(preprocess(bscan, gpr), cfg)
+    result = interpret(bscan, gpr, velocity, sizer=sizer)
     seconds = time.perf_counter() - start
     found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in result.detections)
     return Outcome(found, result.velocity, result.velocity_source == "estimated", seconds, "; ".join(result.notes))
@@ -83,7 +92,7 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model
 
     note, estimated = "", False
     if velocity is None:
-        chain = run_chain(bscan, gpr, None)
+        chain = run_chain(bscan, gpr, None, "fit")
         velocity, note, estimated = chain.velocity, "velocity from the chain", chain.velocity_estimated
     start = time.perf_counter()
     try:
@@ -96,4 +105,10 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model
     return Outcome(found, velocity, estimated, seconds, note)
 
 
-METHODS: dict[str, Method] = {"chain": run_chain, "legacy": run_legacy, "migrationnet": run_migrationnet}
+def run_chain_fit_radius(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
+    """The interpretation chain with the radii of its own fits only (`interpretation.radius_from: fit`)."""
+    return run_chain(bscan, gpr, velocity, "fit")
+
+
+METHODS: dict[str, Method] = {"chain": run_chain, "chain-fit-radius": run_chain_fit_radius, "legacy": run_legacy,
+                              "migrationnet": run_migrationnet}

@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from gprbot.config import Config, GprConfig, InterpretationConfig, load_config
-from gprbot.errors import DataFormatError, UsageError
+from gprbot.errors import DataFormatError, GprbotError, UsageError
 from gprbot.gpr.antennas import GSSI_ANTENNAS, antenna_frequency_mhz, check_frequency_mhz
-from gprbot.gpr.bscan import BScan, CrossSection
+from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.calibrate import KnownTop
 from gprbot.gpr.chain.classify import ClassifiedDetection
 from gprbot.gpr.chain.run import interpret
@@ -30,6 +30,10 @@ __all__ = [
 # A GSSI ground-coupled antenna rides on the surface; its Tx–Rx spacing is a fraction of a
 # wavelength in air. These are approximations for the travel-time model, not vendor figures.
 DEFAULT_OFFSET_M = {100: 0.5, 200: 0.3, 270: 0.25, 400: 0.16, 500: 0.12, 900: 0.06}
+# detections.json's "radius_from", and the mark the text report puts after such a radius
+RADIUS_FROM = {"fit": "hyperbola fit", "survey": "the survey's lines", "migrationnet": "MigrationNet pipe mask",
+               "none": "not measured: the middle of what the hyperbola allows"}
+RADIUS_MARK = {RADIUS_FROM["migrationnet"]: " (mask)", RADIUS_FROM["none"]: " (?)"}
 FILL_HINT = {"slower": "metal, water or wet (slower than the host)", "faster": "air-filled or a void (faster)"}
 
 
@@ -97,10 +101,23 @@ def _detection_json(d: ClassifiedDetection) -> dict[str, object]:
     return {
         "x_m": round(d.x_m, 4), "depth_m": round(d.depth_m, 4), "cover_m": round(d.fit.top_m, 4),
         "radius_m": round(d.radius_m, 4), "radius_sigma_m": round(d.radius_sigma_m, 4),
-        "radius_supported": d.radius_supported,
+        "radius_supported": d.radius_supported, "radius_from": RADIUS_FROM[d.radius_source],
         "contrast": d.contrast, "fill_hint": FILL_HINT[d.contrast],
         "confidence": round(d.confidence, 3), "picks": d.fit.n_picks, "found_by": d.found_by,
     }
+
+
+Sizer = Callable[[float], Sequence[Detection]]
+
+
+def _sizer(bscan: BScan, gpr: GprConfig, cfg: Config) -> tuple[Sizer | None, list[str]]:
+    """MigrationNet's blobs for the radii the chain's curves do not measure, and a note if it cannot be had."""
+    from gprbot.infer.pipeline import migrationnet_sizer
+
+    try:
+        return migrationnet_sizer(preprocess(bscan, gpr), replace(cfg, gpr=gpr)), []
+    except GprbotError as exc:
+        return None, [f"radii the hyperbolas do not measure are left unmeasured: {exc}"]
 
 
 def _migrationnet_section(bscan: BScan, gpr: GprConfig, cfg: InterpretationConfig, v: float) -> CrossSection:
@@ -155,8 +172,9 @@ def interpret_file(
     out = out_dir or default_out_dir(path, cfg)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback, known_tops=known_tops)
-    notes += list(result.notes)
+    sizer, sizer_note = _sizer(bscan, gpr, cfg)
+    result = interpret(bscan, gpr, velocity, fallback_velocity_m_per_ns=fallback, known_tops=known_tops, sizer=sizer)
+    notes += list(result.notes) + sizer_note
     if result.velocity_source == "estimated":
         # One hyperbola's curve cannot give the velocity to a few per cent while its radius is unknown
         # (validation.hyperbola_signatures); a known cover can (validation.known_top).
@@ -216,7 +234,7 @@ def interpret_file(
     ]
     for d in pipes:
         x, depth, r, conf = (float(str(d[k])) for k in ("x_m", "depth_m", "radius_m", "confidence"))
-        radius = f"radius {100 * r:4.1f} cm" + ("" if d.get("radius_supported", True) else " (?)")
+        radius = f"radius {100 * r:4.1f} cm" + RADIUS_MARK.get(str(d.get("radius_from")), "")
         lines.append(f"  pipe   x {x:6.2f} m  depth {depth:5.2f} m  {radius}  confidence {conf:.2f}")
     for bar in result.rebars:
         lines.append(f"  rebar  x {bar.x_m:6.2f} m  cover {bar.fit.top_m:5.3f} m")

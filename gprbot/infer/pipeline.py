@@ -107,8 +107,18 @@ def line_section(
         return interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
     if cfg.interpretation.method == "chain":
         return interpret(processed, cfg.gpr, velocity, depth_max_m=cfg.interpretation.depth_max_m,
-                         hint_at=survey_hints(processed, hints)).section
+                         hint_at=survey_hints(processed, hints), sizer=migrationnet_sizer(processed, cfg)).section
     return interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
+
+
+def migrationnet_sizer(processed: BScan, cfg: Config) -> Callable[[float], tuple[Detection, ...]] | None:
+    """MigrationNet's pipe blobs on a preprocessed line at a velocity, for the chain's radii (`chain.sizing`); None
+    when `interpretation.radius_from` is "fit". A model that cannot be loaded raises its ModelError."""
+    if cfg.interpretation.radius_from != "migrationnet":
+        return None
+    net = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads,
+                                   cfg.models_dir)
+    return lambda v: net.interpret(processed, cfg.gpr, cfg.interpretation, v).detections
 
 
 def survey_hints(processed: BScan, hints: Sequence[CrossingHint]) -> Callable[[float], SurveyHint]:

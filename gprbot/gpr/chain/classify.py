@@ -59,6 +59,9 @@ ON_FLANK_FRACTION = 0.6
 RADIUS_SUPPORT = 0.2
 
 
+RadiusSource = Literal["fit", "survey", "migrationnet", "none"]
+
+
 @dataclass(frozen=True)
 class ClassifiedDetection:
     """A target crossing the line: centre x and depth (m), radius with its error, kind, contrast, confidence."""
@@ -75,6 +78,9 @@ class ClassifiedDetection:
     reflector: Reflector
     found_by: Literal["hyperbola", "migrated spot"] = "hyperbola"  # which stage found it (see spots.py)
     sin_cross: float = 1.0  # sine of the angle the pipe crosses the line at (1: at right angles; a survey's hint)
+    # where the reported radius comes from: the curve's fit (it measures it), the survey's lines (`run.holding`),
+    # MigrationNet's pipe mask (`sizing`), or none (the middle of what the curve allows)
+    radius_source: RadiusSource = "none"
 
 
 def is_hyperbola(prep: PreparedBScan, r: Reflector, v: float | None) -> bool:
@@ -266,7 +272,8 @@ def classify(prep: PreparedBScan, reflectors: Sequence[Reflector], v: float) -> 
         radius, sigma, supported = reported_radius(f)
         contrast: Literal["slower", "faster"] = "faster" if r.candidate.polarity == prep.direct_polarity else "slower"
         out.append(ClassifiedDetection(f.x0_m, f.top_m + radius, radius, sigma, supported,
-                                       "rebar" if k in bars else "pipe", contrast, _confidence(prep, r, f), f, r))
+                                       "rebar" if k in bars else "pipe", contrast, _confidence(prep, r, f), f, r,
+                                       radius_source="fit" if supported else "none"))
     return tuple(out)
 
 

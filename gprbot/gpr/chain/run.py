@@ -23,6 +23,7 @@ from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
+from gprbot.gpr.chain.sizing import sized
 from gprbot.gpr.chain.spots import find_spots, spot_detections, without_echoes_of
 from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
 from gprbot.gpr.migration import depth_axis, envelope, kirchhoff_migrate
@@ -101,7 +102,8 @@ def holding(d: ClassifiedDetection, radius: float | None) -> ClassifiedDetection
     """
     if d.kind != "pipe" or radius is None:
         return d
-    return replace(d, depth_m=d.fit.top_m + radius, radius_m=radius, radius_sigma_m=0.3 * radius)
+    return replace(d, depth_m=d.fit.top_m + radius, radius_m=radius, radius_sigma_m=0.3 * radius,
+                   radius_source="survey")
 
 
 def focused(detections: tuple[ClassifiedDetection, ...], image: NDArray[np.float32], x_m: FloatArray,
@@ -139,7 +141,7 @@ def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v
     mask = np.zeros((len(z), len(prep.x_m)), dtype=bool)
     pipes, bars = [], []
     for d in detections:
-        item = Detection(d.x_m, d.depth_m, d.radius_m, d.confidence, d.radius_supported)
+        item = Detection(d.x_m, d.depth_m, d.radius_m, d.confidence, d.radius_source != "none")
         if d.kind == "pipe":  # an oblique pipe's cross-section along the line: an ellipse R/sin wide
             r = max(d.radius_m, 0.5 * dz)
             mask |= ((prep.x_m[None, :] - d.x_m) * d.sin_cross) ** 2 + (z[:, None] - d.depth_m) ** 2 <= r * r
@@ -153,6 +155,7 @@ def interpret(
     bscan: BScan, gpr: GprConfig, velocity_m_per_ns: float | None = None, *,
     fallback_velocity_m_per_ns: float | None = None, depth_max_m: float | None = None,
     hint_at: Callable[[float], SurveyHint] | None = None, known_tops: Sequence[KnownTop] = (),
+    sizer: Callable[[float], Sequence[Detection]] | None = None,
 ) -> Interpretation:
     """Interpret one B-scan: the velocity given, else calibrated on known tops (two at different depths fix
     time zero too), else estimated from its hyperbolas, else the fallback.
@@ -160,6 +163,9 @@ def interpret(
     `hint_at(x)` is what a survey's other lines say of a pipe whose apex lies at along-track x. An oblique
     pipe's hyperbola along the line is the right-angle one stretched by 1/sin: it is fitted at v/sin and
     its depth and radius are the fit's times sin. A pipe's radius is the survey's where it has one.
+
+    `sizer(v)` segments the section migrated at v (MigrationNet: `gprbot.infer.pipeline.migrationnet_sizer`); a
+    pipe whose curve does not measure its radius takes that of the blob at its top (`sizing`).
     """
     notes: list[str] = []
     prep = prepare(bscan, gpr)
@@ -211,6 +217,8 @@ def interpret(
     spots = find_spots(prep, envelope(image), z, v)
     extra = spot_detections(prep, spots, detections, v)
     detections = relabel_rows(without_echoes_of(detections, extra, prep.wavelength_m(v)) + extra)
+    if sizer is not None and any(d.kind == "pipe" and d.radius_source == "none" for d in detections):
+        detections = sized(detections, sizer(v))
     if hint_at is not None:
         detections = tuple(holding(d, hint_at(d.x_m).radius_m) for d in detections)
     section = _section(prep, detections, v, image, z, source == "estimated")

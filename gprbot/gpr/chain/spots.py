@@ -177,7 +177,8 @@ def _spot_detection(prep: PreparedBScan, spot: Spot, seeded: Reflector | None, v
     confidence = float(min(1.0, spot.focus) * min(1.0, seeded.coherence / 0.5)
                        * (1.0 - np.exp(-seeded.candidate.snr / 15.0)))
     return ClassifiedDetection(fit.x0_m, fit.depth_m, fit.radius_m, fit.sigma_radius_m, supported, "pipe",
-                               contrast, confidence, fit, seeded, found_by="migrated spot")
+                               contrast, confidence, fit, seeded, found_by="migrated spot",
+                               radius_source="fit" if supported else "none")
 
 
 def spot_detections(prep: PreparedBScan, spots: Sequence[Spot], detections: Sequence[ClassifiedDetection],
