@@ -72,6 +72,7 @@ class Detection:
     radius_m: float
     score: float
     radius_supported: bool = True  # False: the data do not measure it (the chain's `reported_radius`)
+    radius_from_mask: bool = False  # the radius is the half-height of MigrationNet's blob (the chain's `sizing`)
 
 
 @dataclass(frozen=True)

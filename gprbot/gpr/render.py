@@ -190,7 +190,8 @@ def write_cross_section_png(
         px = float(axis.of(d.x_m))
         ax.plot([px], [d.depth_m], marker="+", markersize=12, markeredgewidth=2, color=YELLOW)
         size = f"Ø {d.radius_m * 200:.1f} cm" if d.radius_m > 0 else "Ø not measured"  # the interpreter's 0
-        size += "" if d.radius_supported else " (?)"  # the middle of what the curve allows
+        size += " (mask)" if d.radius_from_mask else "" if d.radius_supported else " (?)"  # (?): the middle of
+        # what the curve allows
         ax.annotate(f"{size}, cover {d.depth_m - d.radius_m:.2f} m", (px, d.depth_m),
                     xytext=(6, -10), textcoords="offset points", color=YELLOW, fontsize=8,
                     bbox={"boxstyle": "round,pad=0.15", "fc": "black", "alpha": 0.6, "lw": 0})
@@ -204,8 +205,9 @@ def write_cross_section_png(
     scale = "true scale" if exaggeration == 1.0 else f"vertical exaggeration ×{exaggeration:g}"
     rebars = f", {len(section.rebars)} rebars" if section.rebars else ""
     ax.set_title(textwrap.fill(f"{title}: v = {section.velocity_m_per_ns:.4f} m/ns ({kind}), "
-                               f"{len(section.detections)} pipes{rebars}; {scale}", 110), fontsize=10)
+                               f"{len(section.detections)} pipes{rebars}; {scale}", 80), fontsize=10)
     legend = "green: cross-section mask" + ("   red: truth" if truth_mask is not None else "")
-    fig.text(0.5, 0.02, f"{legend}   yellow +: pipe centre (label: diameter, (?) where the data do not measure it, "
-             "depth of cover to its top)   magenta o: rebar", fontsize=8, color="#444444", ha="center", va="bottom")
+    fig.text(0.5, 0.01, textwrap.fill(f"{legend}   yellow +: pipe centre (label: diameter, (?) where the data do not "
+                                      "measure it, (mask) from MigrationNet's pipe mask, depth of cover to its top)   "
+                                      "magenta o: rebar", 120), fontsize=8, color="#444444", ha="center", va="bottom")
     save_png(fig, path)

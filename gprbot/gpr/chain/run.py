@@ -141,7 +141,8 @@ def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v
     mask = np.zeros((len(z), len(prep.x_m)), dtype=bool)
     pipes, bars = [], []
     for d in detections:
-        item = Detection(d.x_m, d.depth_m, d.radius_m, d.confidence, d.radius_source != "none")
+        item = Detection(d.x_m, d.depth_m, d.radius_m, d.confidence, d.radius_source != "none",
+                         d.radius_source == "migrationnet")
         if d.kind == "pipe":  # an oblique pipe's cross-section along the line: an ellipse R/sin wide
             r = max(d.radius_m, 0.5 * dz)
             mask |= ((prep.x_m[None, :] - d.x_m) * d.sin_cross) ** 2 + (z[:, None] - d.depth_m) ** 2 <= r * r
