@@ -51,8 +51,17 @@ class BScan:
     position_std_m: FloatArray | None = None  # per trace, 1σ of its horizontal position (pose filter); None: unknown
 
     def along_track_m(self) -> FloatArray:
-        """Horizontal distance of every trace from the first one, along the line (m)."""
-        return along_track_distance(self.positions)
+        """Horizontal distance of every trace from the first one, along the line (m); read-only.
+
+        Made once per B-scan (its positions never change): every stage asks for it, and its smoothing fit
+        cost a few milliseconds a call (five calls a line in the interpretation chain and MigrationNet).
+        """
+        cached: FloatArray | None = self.__dict__.get("_along_track_m")
+        if cached is None:
+            cached = along_track_distance(self.positions)
+            cached.setflags(write=False)
+            object.__setattr__(self, "_along_track_m", cached)  # a cache, not a field: replace() makes a new one
+        return cached
 
     def position_at(self, along_m: FloatArray | float) -> FloatArray:
         """Site-frame antenna midpoint (..., 3) at along-track coordinate(s), interpolated."""
