@@ -92,3 +92,16 @@ def test_the_cli_sizes_an_fdtd_pipe_with_migrationnet_and_says_so(tmp_path: Path
     assert net["radius_from"] == "MigrationNet pipe mask" and fit["radius_from"].startswith("not measured")
     assert abs(net["radius_m"] / true_pipe["radius_m"] - 1.0) <= 0.3  # 1.64 cm for 1.5 cm; the fit's: 0.27 cm
     assert net["cover_m"] == fit["cover_m"] and abs(net["depth_m"] - true_pipe["depth_m"]) <= 0.01
+
+
+def test_a_survey_line_without_the_model_still_gives_its_pipes(caplog: pytest.LogCaptureFixture) -> None:
+    from gprbot.gpr.preprocess import preprocess
+    from gprbot.infer.pipeline import line_section
+
+    cfg = load_config()
+    cfg = replace(cfg, gpr=GPR, interpretation=replace(cfg.interpretation, method="chain",
+                                                       migrationnet_model="models/no_such_model.onnx"))
+    b = preprocess(_line([SyntheticTarget(0.8, 0.2, 0.004, 1.0)]), GPR)
+    with caplog.at_level("WARNING"):
+        section = line_section(b, cfg, V)
+    assert section.detections and "no_such_model.onnx" in caplog.text and "radii from the hyperbolas" in caplog.text

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gprbot.config import Config, model_path
-from gprbot.errors import InterpretationError
+from gprbot.errors import InterpretationError, ModelError
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.candidates import apex_candidates
 from gprbot.gpr.chain.prepare import prepare
@@ -106,8 +106,13 @@ def line_section(
                                               cfg.models_dir)
         return interpreter.interpret(processed, cfg.gpr, cfg.interpretation, velocity)
     if cfg.interpretation.method == "chain":
+        try:
+            sizer = migrationnet_sizer(processed, cfg)
+        except ModelError as exc:  # the pipes still come, their radii unmeasured where the curves say nothing
+            log.warning("interpretation.radius_from: migrationnet, but %s; radii from the hyperbolas only", exc)
+            sizer = None
         return interpret(processed, cfg.gpr, velocity, depth_max_m=cfg.interpretation.depth_max_m,
-                         hint_at=survey_hints(processed, hints), sizer=migrationnet_sizer(processed, cfg)).section
+                         hint_at=survey_hints(processed, hints), sizer=sizer).section
     return interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
 
 
