@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -134,6 +135,20 @@ def _known_top(text: str) -> KnownTop:
         raise argparse.ArgumentTypeError(f"expected X:DEPTH in metres, e.g. 0.55:0.08 (got {text!r}; {exc})") from exc
 
 
+def _site_top(text: str) -> tuple[float, float, float]:
+    """--known-top X,Y:DEPTH (replay): a target's top in the site frame and its depth below the surface, metres."""
+    try:
+        where, depth = text.split(":")
+        x, y = (float(part) for part in where.split(","))
+        top = (x, y, float(depth))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected X,Y:DEPTH in metres (site frame), e.g. 0.85,0.40:0.06 "
+                                         f"(got {text!r}; {exc})") from exc
+    if not all(math.isfinite(v) for v in top) or not 0.0 < top[2] <= 5.0:
+        raise argparse.ArgumentTypeError(f"expected finite X,Y and a depth in (0, 5] m, got {text!r}")
+    return top
+
+
 def _cmd_interpret(args: argparse.Namespace) -> int:
     from gprbot.apps.interpret_file import interpret_file
 
@@ -194,7 +209,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     run_dir = Path(args.run)
     out = Path(args.out) if args.out else run_dir / "replay"
     cfg = load_config(args.config) if args.config else None
-    result = replay_run(run_dir, out, cfg)
+    result = replay_run(run_dir, out, cfg, args.known_top or ())
     if args.json:
         summary = json.loads((out / "summary.json").read_text())
         summary.pop("config", None)  # the resolved config is in summary.json; stdout keeps to the results
@@ -314,6 +329,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("run", help="the run directory (holding log-000.msgpack ...)")
     replay.add_argument("--out", help="where to write the results (default: RUN/replay)")
     replay.add_argument("--config", help="override the config recorded in the run's header")
+    replay.add_argument("--known-top", type=_site_top, metavar="X,Y:DEPTH", action="append",
+                        help="a target whose top lies DEPTH m below the surface at site (X, Y) m (a cover meter, a "
+                             "core): the survey's velocity is calibrated on it instead of estimated (repeatable)")
     replay.add_argument("--json", action="store_true", help="print the summary as JSON")
     replay.set_defaults(func=_cmd_replay)
 

@@ -40,6 +40,9 @@ class GprConfig:
     tx_rx_offset_m: float = 0.05
     noise_mv: float = 0.5
     eps_r: float | None = None  # known slab permittivity; None: estimate velocity from hyperbolas
+    # Targets whose cover is known (a cover meter reading, a core): (x, y, depth of the target's top), site frame,
+    # m. The survey's velocity is calibrated on them (gprbot/infer/known_tops.py) instead of estimated.
+    known_tops: tuple[Vec3, ...] = ()
 
     @property
     def dt_ns(self) -> float:

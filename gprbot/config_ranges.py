@@ -161,6 +161,13 @@ def _check_relations(config: Any) -> None:
     if gpr.pre_trigger_ns >= gpr.time_window_ns:
         raise ConfigError(f"gpr.pre_trigger_ns: must be less than gpr.time_window_ns ({gpr.time_window_ns:g}), "
                           f"got {gpr.pre_trigger_ns:g}")
+    if gpr.known_tops and gpr.eps_r is not None:
+        raise ConfigError("gpr.known_tops: the velocity is fixed by gpr.eps_r already; set one of the two "
+                          "(eps_r: null to calibrate on the known tops)")
+    for i, (_, _, depth) in enumerate(gpr.known_tops):
+        if not 0.0 < depth <= 5.0:
+            raise ConfigError(f"gpr.known_tops[{i}]: the third number is the depth of the target's top below the "
+                              f"surface, in (0, 5] m; got {depth:g}")
     if device.points_per_trace != gpr.samples:
         raise ConfigError(f"gpr_device.points_per_trace: must equal gpr.samples ({gpr.samples}), got "
                           f"{device.points_per_trace}; leave it out to derive it from gpr")

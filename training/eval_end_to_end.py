@@ -97,7 +97,7 @@ def evaluate_survey(survey: Survey, base: Config) -> list[dict[str, Any]]:
     cfg = chain_config(base, survey, "classical", COMPLETIONS[0])
     try:
         processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
-        velocity, _, hints = survey_velocity(processed, cfg)
+        velocity, _, hints, _ = survey_velocity(processed, cfg)
     except GprbotError as exc:  # no velocity: every chain refuses the survey
         return [refused(m, c, exc) for m in INTERPRETERS for c in COMPLETIONS]
     footprint = survey_footprint({line: b.positions for line, b in processed.items()})

@@ -132,7 +132,10 @@ def report(rows: Sequence[Row], groups: Sequence[str], methods: Sequence[str]) -
              "(models/eval_end_to_end_fdtd.md), then here; it moves only the legacy rows. Later on 2026-12-05 a "
              "point-curve check for migrated spots (drawn from two_pipes_900 on the dev half: dev within 3 cm "
              "19 -> 22 of 25, false pipes unchanged) was measured on it once: within 3 cm 17 -> 18 of 22, false "
-             "pipes 0.48 -> 0.71 a scene, velocity given; taken out (validation/README.md).", ""]
+             "pipes 0.48 -> 0.71 a scene, velocity given; taken out (validation/README.md). Later still on "
+             "2026-12-05 the second batch of random scenes (random_18-41, 12 a half) joined both halves; its test "
+             "scenes were first run for this report, together with the chain's radii from MigrationNet's mask "
+             "(chain.sizing, drawn from the dev half; `chain-fit-radius` is the chain without it).", ""]
     keys = list(summary([]).keys())
     for group in groups:
         if group == "real":

@@ -4,7 +4,9 @@ The product's own estimate (`gprbot.infer.pipeline.survey_velocity`: the hyperbo
 wide or held, else the chain's per-line votes), on the surveys `training.eval_end_to_end` runs: the FDTD
 dev or test half laid on survey lines, or the first N simulated test surveys. Prints each survey's
 error and the median |error| and the count within 5 %; `--wide-only` turns the held fit off
-(`FLANKS_AGREE` = ∞), the estimate before 80bb197.
+(`FLANKS_AGREE` = ∞), the estimate before 80bb197. `--known-top`: the velocity calibrated instead on the true
+top of the survey's first pipe where it crosses the middle line (`gpr.known_tops`, gprbot/infer/known_tops.py),
+as an inspector's one cover-meter reading would give it; surveys without a pipe are left out.
 """
 
 from __future__ import annotations
@@ -15,12 +17,26 @@ import math
 import statistics
 import time
 
+import numpy as np
+
 import gprbot.gpr.velocity as velocity
 from gprbot.config import load_config
 from gprbot.errors import GprbotError
 from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.pipeline import survey_velocity
-from training.e2e_surveys import survey_makers
+from training.e2e_surveys import Survey, survey_makers
+
+
+def first_top(survey: Survey) -> tuple[float, float, float]:
+    """(x, y, depth of the top) of the survey's first pipe where it crosses the middle line (site frame, m)."""
+    pipe = survey.truth.pipes[0]
+    lines = sorted(survey.bscans)
+    positions = survey.bscans[lines[len(lines) // 2]].positions
+    y = float(np.median(positions[:, 1]))
+    a, b = pipe.points[0], pipe.points[-1]
+    s = (y - a[1]) / (b[1] - a[1]) if b[1] != a[1] else 0.0  # the axis runs across the lines
+    x = float(a[0] + s * (b[0] - a[0]))
+    return x, y, float(-(a[2] + s * (b[2] - a[2])) - pipe.radius_m)
 
 
 def main() -> None:
@@ -29,6 +45,7 @@ def main() -> None:
     parser.add_argument("source", choices=("dev", "test", "sim"))
     parser.add_argument("--limit", type=int, default=30, help="sim: the first N test surveys")
     parser.add_argument("--wide-only", action="store_true", help="the wide fit alone (before 80bb197)")
+    parser.add_argument("--known-top", action="store_true", help="calibrate on the first pipe's true top")
     args = parser.parse_args()
     if args.wide_only:
         velocity.FLANKS_AGREE = math.inf
@@ -38,9 +55,13 @@ def main() -> None:
     for make in survey_makers(source, base.gpr, args.limit, half):
         survey = make()
         cfg = dataclasses.replace(base, gpr=survey.gpr)
+        if args.known_top:
+            if not survey.truth.pipes:
+                continue
+            cfg = dataclasses.replace(cfg, gpr=dataclasses.replace(survey.gpr, known_tops=(first_top(survey),)))
         start = time.perf_counter()
         try:
-            v, _, _ = survey_velocity({line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}, cfg)
+            v, _, _, _ = survey_velocity({line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}, cfg)
         except GprbotError as exc:
             print(f"{survey.name:26s} {survey.case[:22]:22s} not estimated: {exc}")
             errors.append(math.inf)

@@ -8,15 +8,15 @@ A torn log replays every line that is complete in it (start and end events, pose
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gprbot import __version__, progress
-from gprbot.config import Config, build_dataclass, to_dict
+from gprbot.config import Config, Vec3, build_dataclass, to_dict
 from gprbot.errors import ConfigError, GprbotError
 from gprbot.fusion.fuser import PoseFuser
 from gprbot.fusion.snapshot import restore
@@ -187,8 +187,16 @@ def survey_bscans(run: RecordedRun) -> dict[int, BScan]:
     return {line: assemble_bscan(traces, run.poses, lever) for line, traces in by_line.items() if traces}
 
 
-def replay_run(run_dir: Path, out_dir: Path, cfg: Config | None = None) -> SurveyResult:
-    """Reprocess a recorded run into out_dir (PLYs, pipes.json, PNGs, summary.json with the log's state)."""
+def with_known_tops(cfg: Config, tops: Sequence[Vec3]) -> Config:
+    """The config with the velocity calibrated on these known tops (x, y, depth of the top; site frame, m),
+    eps_r cleared: a known cover is what the inspector measured on this slab."""
+    return replace(cfg, gpr=replace(cfg.gpr, eps_r=None, known_tops=tuple(tops)))
+
+
+def replay_run(run_dir: Path, out_dir: Path, cfg: Config | None = None,
+               known_tops: Sequence[Vec3] = ()) -> SurveyResult:
+    """Reprocess a recorded run into out_dir (PLYs, pipes.json, PNGs, summary.json with the log's state);
+    `known_tops` calibrate its velocity (`with_known_tops`)."""
     with progress.bar(None, f"{Path(run_dir).name}: reading the run log") as steps:
 
         def step(what: str) -> None:
@@ -196,6 +204,8 @@ def replay_run(run_dir: Path, out_dir: Path, cfg: Config | None = None) -> Surve
             steps.update()
 
         run = load_run(run_dir, cfg)
+        if known_tops:
+            run = replace(run, config=with_known_tops(run.config, known_tops))
         bscans = survey_bscans(run)
         if not bscans:
             raise GprbotError(f"{run_dir}: no complete survey line in the run log "

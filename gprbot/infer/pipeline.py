@@ -11,6 +11,7 @@ import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,8 +28,9 @@ from gprbot.gpr.chain.velocity import weighted_median
 from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint, nearest_hint
+from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint, VelocityEstimate, nearest_hint
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
+from gprbot.infer.known_tops import calibrate_survey
 from gprbot.infer.migrationnet import MigrationNetInterpreter
 from gprbot.infer.refine import FitRefinerModel, refined_reconstruction
 from gprbot.reconstruct.completion import Reconstruction, geometric_completion
@@ -39,19 +41,50 @@ from gprbot.reconstruct.survey_result import LineResult, SurveyResult
 log = logging.getLogger(__name__)
 
 
-def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> tuple[float, bool, tuple[CrossingHint, ...]]:
-    """The survey's wave velocity (configured eps_r, else all hyperbolas) and the pipes' crossing angles."""
+class SurveyVelocity(NamedTuple):
+    """The survey's velocity (m/ns), whether it was estimated from the hyperbolas, the pipes' crossing angles,
+    and how it was found, in words."""
+
+    v: float
+    estimated: bool
+    hints: tuple[CrossingHint, ...]
+    method: str
+
+
+def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> SurveyVelocity:
+    """The survey's wave velocity (configured eps_r, else calibrated on known tops, else all hyperbolas) and the
+    pipes' crossing angles."""
     try:
         estimate = estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
     except InterpretationError:
-        if cfg.gpr.eps_r is not None:
-            return velocity_from_eps(cfg.gpr.eps_r), False, ()
+        estimate = None
+    hints = estimate.crossings if estimate is not None else ()
+    if cfg.gpr.eps_r is not None:
+        return SurveyVelocity(velocity_from_eps(cfg.gpr.eps_r), False, hints, "from the configured eps_r")
+    if cfg.gpr.known_tops:
+        prior = _rough_velocity(processed, cfg, estimate)
+        calibration = calibrate_survey(processed, cfg.gpr, cfg.gpr.known_tops, prior)
+        for note in calibration.notes:
+            log.warning("known tops: %s", note)
+        if calibration.v is not None:
+            return SurveyVelocity(calibration.v, False, hints, f"{calibration.method}, ±{calibration.sigma:.4f} m/ns")
+        log.warning("no known top could be used (above): the velocity is estimated from the hyperbolas")
+    if estimate is None:
         # The survey's hyperbola fits found none to use; the interpretation chain's migration focus often still
         # does (the FDTD dev half laid on survey lines: 5 of the 6 surveys refused for want of a velocity).
-        return chain_survey_velocity(list(processed.values()), cfg), True, ()
-    if cfg.gpr.eps_r is not None:
-        return velocity_from_eps(cfg.gpr.eps_r), False, estimate.crossings
-    return float(estimate.v), True, estimate.crossings
+        return SurveyVelocity(chain_survey_velocity(list(processed.values()), cfg), True, (),
+                              "estimated from the lines' diffractions (migration focus)")
+    return SurveyVelocity(float(estimate.v), True, hints, "estimated from all lines' hyperbolas")
+
+
+def _rough_velocity(processed: Mapping[int, BScan], cfg: Config, estimate: VelocityEstimate | None) -> float | None:
+    """The hyperbolas' velocity (the survey fit's, else the chain's votes), to match known tops to their apexes."""
+    if estimate is not None:
+        return float(estimate.v)
+    try:
+        return chain_survey_velocity(list(processed.values()), cfg)
+    except InterpretationError:
+        return None
 
 
 def chain_survey_velocity(lines: Sequence[BScan], cfg: Config) -> float:
@@ -214,7 +247,7 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     step("preprocessed")
 
     t0 = time.perf_counter()
-    velocity, estimated, hints = survey_velocity(processed, cfg)
+    velocity, estimated, hints, velocity_method = survey_velocity(processed, cfg)
     timings["velocity"] = time.perf_counter() - t0
     step("velocity")
 
@@ -245,4 +278,5 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     timings |= completion_timings
     timings["reconstruct"] = time.perf_counter() - t0
     step("completion")
-    return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings, dict(sorted(skipped.items())))
+    return SurveyResult(lines, velocity, estimated, sparse, reconstruction, timings, dict(sorted(skipped.items())),
+                        velocity_method)

@@ -52,6 +52,8 @@ def georeference_of(meta: Mapping[str, Any]) -> Georeference | None:
 
 def velocity_note(result: SurveyResult) -> str:
     """Where the survey's velocity came from, in words."""
+    if result.velocity_method:
+        return result.velocity_method
     return "estimated from all lines' hyperbolas" if result.velocity_estimated else "from the configured eps_r"
 
 
@@ -139,6 +141,7 @@ def write_survey_outputs(
         **meta,
         "velocity_m_per_ns": result.velocity_m_per_ns,
         "velocity_estimated": result.velocity_estimated,
+        "velocity_method": velocity_note(result),
         "lines": len(result.lines),
         "skipped_lines": {str(k): why for k, why in result.skipped_lines.items()},
         "pipes_found": len(recon.pipes),

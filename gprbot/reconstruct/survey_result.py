@@ -34,3 +34,4 @@ class SurveyResult:
     reconstruction: Reconstruction
     timings_s: dict[str, float] = field(default_factory=dict)
     skipped_lines: dict[int, str] = field(default_factory=dict)  # line → why it could not be interpreted
+    velocity_method: str = ""  # how the velocity was found, in words ("": as velocity_estimated says)

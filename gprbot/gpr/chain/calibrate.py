@@ -79,15 +79,26 @@ class Apex:
     t_ns: float
 
 
-def apex_near(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop) -> Apex | None:
+def apex_near(prep: PreparedBScan, reflectors: Sequence[Reflector], known: KnownTop,
+              prior_v: float | None = None) -> Apex | None:
     """The hyperbola of the target at `known.x_m` and its apex time; None without one there.
 
     The target's top is the earliest apex at its position: under it lie its echoes (ringing, a pipe's
     bottom, multiples: FDTD dev, the nearest apex was an echo on 3 of 20 scenes). A neighbour a few
-    centimetres aside may be earlier, so the closest window that holds an apex is searched first.
+    centimetres aside may be earlier, so the closest window that holds an apex is searched first. With a
+    `prior_v` (a survey's estimate from all its hyperbolas), the apex whose time puts the known depth at the
+    velocity nearest it is taken instead: a pipe under a shallower pipe or a bar has earlier apexes within
+    a few centimetres of its own (FDTD dev surveys: +226 % from a bar's apex over a 30 cm deep pipe).
     """
     for window in (NEAR_M, SEARCH_M):
         near = [(apex_time(prep, r.free_fit), r) for r in reflectors if abs(r.free_fit.x0_m - known.x_m) <= window]
+        if prior_v is not None:
+            near_v = [(abs(math.log(v / prior_v)), t, r) for t, r in near
+                      if (v := velocity_for(prep, t, known.top_m)) is not None]
+            if near_v:
+                _, t, r = min(near_v, key=lambda dtr: dtr[0])
+                return Apex(known, r, t)
+            continue
         if near:
             t, r = min(near, key=lambda tr: tr[0])
             return Apex(known, r, t)
@@ -182,9 +193,11 @@ class Calibration:
     notes: tuple[str, ...]
 
 
-def calibrate(prep: PreparedBScan, reflectors: Sequence[Reflector], known: Sequence[KnownTop]) -> Calibration:
-    """The velocity from known tops: two apart in depth fix time zero too; else the median of single calibrations."""
-    found = {k: apex_near(prep, reflectors, k) for k in known}
+def calibrate(prep: PreparedBScan, reflectors: Sequence[Reflector], known: Sequence[KnownTop],
+              prior_v: float | None = None) -> Calibration:
+    """The velocity from known tops: two apart in depth fix time zero too; else the median of single calibrations.
+    `prior_v`: a rough velocity that tells a known top's apex from its neighbours' (`apex_near`)."""
+    found = {k: apex_near(prep, reflectors, k, prior_v) for k in known}
     apexes = [a for a in found.values() if a is not None]
     notes = [f"no hyperbola within {100 * SEARCH_M:.0f} cm of x {k.x_m:.3f} m: the known top there "
              f"({100 * k.top_m:.1f} cm) was not used; check its position (metres from the first trace)"
