@@ -131,7 +131,14 @@ def measured_s(scene: Scene) -> float | None:
 
 
 def write_costs(scenes: list[Scene]) -> None:
-    """costs.csv: the estimate and the measured cost of every finished scene (robust to resumed runs)."""
+    """costs.csv: the estimate and the measured cost of every finished scene (robust to resumed runs).
+
+    A scene whose runs are not in this checkout's work/ (work/ is not committed) keeps the row it has.
+    """
+    kept: dict[str, dict[str, object]] = {}
+    if COSTS.exists():
+        with open(COSTS) as f:
+            kept = {r["name"]: dict(r) for r in csv.DictReader(f)}
     rows = []
     for s in sorted(scenes, key=lambda s: s.name):
         seconds = measured_s(s)
@@ -140,6 +147,8 @@ def write_costs(scenes: list[Scene]) -> None:
             rows.append({"name": s.name, "half": s.half, "traces": s.traces, "cells": lay.nx * lay.ny,
                          "iterations": lay.iterations, "estimate_s": round(lay.estimate_s(s.traces)),
                          "measured_s": round(seconds, 1)})
+        elif s.name in kept:
+            rows.append(kept[s.name])
     with open(COSTS, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=["name", "half", "traces", "cells", "iterations", "estimate_s",
                                                "measured_s"])
