@@ -88,9 +88,10 @@ class InterpretationConfig:
 
     method: Literal["classical", "chain", "migrationnet"] = "classical"
     migrationnet_model: str = "models/migrationnet.onnx"  # used when method is migrationnet; see model_path()
-    # The chain's pipes whose hyperbola does not measure the radius: from MigrationNet's pipe mask at their top
-    # (the model above; validation/README.md), or the middle of what the curve allows ("fit")
-    radius_from: Literal["migrationnet", "fit"] = "migrationnet"
+    # The chain's pipes whose hyperbola does not measure the radius: the middle of what the curve allows ("fit"),
+    # or MigrationNet's pipe mask at their top (the model above): better diameters, worse centres on the FDTD test
+    # half (validation/README.md), so not the default
+    radius_from: Literal["fit", "migrationnet"] = "fit"
     migration: Literal["kirchhoff", "stolt"] = "kirchhoff"
     aperture_deg: float = 35.0
     mask_threshold: float = 0.5

@@ -99,7 +99,7 @@ def test_a_survey_line_without_the_model_still_gives_its_pipes(caplog: pytest.Lo
     from gprbot.infer.pipeline import line_section
 
     cfg = load_config()
-    cfg = replace(cfg, gpr=GPR, interpretation=replace(cfg.interpretation, method="chain",
+    cfg = replace(cfg, gpr=GPR, interpretation=replace(cfg.interpretation, method="chain", radius_from="migrationnet",
                                                        migrationnet_model="models/no_such_model.onnx"))
     b = preprocess(_line([SyntheticTarget(0.8, 0.2, 0.004, 1.0)]), GPR)
     with caplog.at_level("WARNING"):

@@ -105,10 +105,11 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model
     return Outcome(found, velocity, estimated, seconds, note)
 
 
-def run_chain_fit_radius(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
-    """The interpretation chain with the radii of its own fits only (`interpretation.radius_from: fit`)."""
-    return run_chain(bscan, gpr, velocity, "fit")
+def run_chain_mask_radius(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
+    """The interpretation chain with the radii its curves do not measure from MigrationNet's pipe mask
+    (`interpretation.radius_from: migrationnet`)."""
+    return run_chain(bscan, gpr, velocity, "migrationnet")
 
 
-METHODS: dict[str, Method] = {"chain": run_chain, "chain-fit-radius": run_chain_fit_radius, "legacy": run_legacy,
+METHODS: dict[str, Method] = {"chain": run_chain, "chain-mask-radius": run_chain_mask_radius, "legacy": run_legacy,
                               "migrationnet": run_migrationnet}
