@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import shutil
 from pathlib import Path
@@ -14,12 +15,14 @@ import pytest
 from gprbot.apps.replay import fuse_poses, load_run, record_simulated_survey, replay_run, windows_from_events
 from gprbot.config import load_config
 from gprbot.errors import GprbotError
+from gprbot.fusion.fuser import PoseFuser
+from gprbot.fusion.snapshot import restore, take_snapshot
 from gprbot.infer.pipeline import reconstruct_survey
 from gprbot.messages import ImuSample, Pose, SurveyEvent, WheelSpeeds
 from gprbot.runlog import segment_path
 from gprbot.runlog_reader import RunLogReader
 from gprbot.sim.scene import load_scene
-from gprbot.survey import assemble_bscan, line_windows, split_by_line
+from gprbot.survey import assemble_bscan, line_windows, split_by_line, start_pose
 
 
 @pytest.fixture(scope="module")
@@ -113,7 +116,39 @@ def test_poses_are_fused_from_raw_sensors_when_none_were_recorded() -> None:
             messages.append(WheelSpeeds(t, np.zeros(3)))
     poses = fuse_poses(messages, cfg)
     assert len(poses) > 50
-    assert max(float(np.abs(p.position).max()) for p in poses) < 1e-3
+    # At rest where the daemon's filter starts the base: the antenna over the survey's start point.
+    x, y, _ = start_pose(cfg)
+    assert max(float(np.abs(p.position - [x, y, 0.0]).max()) for p in poses) < 1e-3
+
+
+def test_a_snapshot_taken_before_the_filter_initialised_restores_its_start_pose() -> None:
+    # A run log opened on a daemon just started holds a snapshot of a filter still collecting its rest
+    # samples; restored without its start pose it initialised at the origin: every replayed pipe was a lever
+    # arm (25 cm) off the daemon's own.
+    cfg = load_config()
+    x, y, yaw = start_pose(cfg)
+    live = PoseFuser(cfg.fusion, cfg.motors, initial_position=(x, y, 0.0), initial_yaw_rad=yaw)
+    snapshot = take_snapshot(0.0, live)
+    gravity = np.array([0.0, 0.0, 9.81])
+    rest: list[Any] = []
+    for k in range(300):  # 1.5 s at rest: IMU at 200 Hz, wheels at 50 Hz
+        rest.append(ImuSample(0.005 * k, np.zeros(3), gravity.copy()))
+        if k % 4 == 0:
+            rest.append(WheelSpeeds(0.005 * k, np.zeros(3)))
+    older = dataclasses.replace(snapshot, arrays=_without(snapshot.arrays, "initial_pose"))
+    for restored in (restore(snapshot, cfg.fusion, cfg.motors)[0],  # its own arrays say where
+                     restore(older, cfg.fusion, cfg.motors, (x, y, yaw))[0]):  # an older one: the caller's pose
+        poses = [p for m in rest for p in restored.push(m)]
+        assert poses and max(float(np.abs(p.position - [x, y, 0.0]).max()) for p in poses) < 1e-3
+
+
+def _without(arrays: bytes, name: str) -> bytes:
+    """An npz archive less one of its arrays."""
+    with np.load(io.BytesIO(arrays)) as data:
+        kept = {k: data[k] for k in data.files if k != name}
+    buffer = io.BytesIO()
+    np.savez(buffer, **kept)
+    return buffer.getvalue()
 
 
 def test_a_log_without_complete_lines_is_a_clear_error(tmp_path: Path, recorded: dict[str, Any]) -> None:

@@ -39,7 +39,7 @@ from gprbot.outputs.run_dir import write_survey_outputs
 from gprbot.reconstruct.survey_result import SurveyResult
 from gprbot.runlog import RunLogWriter, make_run_header
 from gprbot.runlog_reader import RunLogReader
-from gprbot.survey import LineWindow, assemble_bscan, line_windows, split_by_line
+from gprbot.survey import LineWindow, assemble_bscan, line_windows, split_by_line, start_pose
 
 if TYPE_CHECKING:
     from gprbot.sim.scene import Scene
@@ -117,7 +117,7 @@ def continue_filter(snapshot: FusionSnapshot, messages: Iterable[Any], cfg: Conf
     recorded) were already turned into the logged VO measurements. Nothing is flushed: the daemon's
     filter ran on after the log closed, so the poses end where the daemon's had reached.
     """
-    fuser, queued = restore(snapshot, cfg.fusion, cfg.motors)
+    fuser, queued = restore(snapshot, cfg.fusion, cfg.motors, start_pose(cfg))
     poses: list[Pose] = []
     for message in queued:
         poses.extend(fuser.push(message))
@@ -133,7 +133,8 @@ def fuse_poses(messages: Iterable[Any], cfg: Config) -> list[Pose]:
     """Poses from raw IMU, wheel and VO data (RGB-D frames run through VO when no VO was recorded)."""
     items = list(messages)
     have_vo = any(isinstance(m, VoMeasurement) for m in items)
-    fuser = PoseFuser(cfg.fusion, cfg.motors)
+    x, y, yaw = start_pose(cfg)  # where the daemon's filter starts the base
+    fuser = PoseFuser(cfg.fusion, cfg.motors, initial_position=(x, y, 0.0), initial_yaw_rad=yaw)
     odometry = None
     poses: list[Pose] = []
     for message in items:

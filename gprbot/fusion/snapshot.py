@@ -41,6 +41,10 @@ def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = 
     arrays["init_gyro"] = np.array(fuser._init_gyro, dtype=np.float64).reshape(-1, 3)
     arrays["init_accel"] = np.array(fuser._init_accel, dtype=np.float64).reshape(-1, 3)
     arrays.update(ekf.velocity_changes.arrays())
+    # Where the filter puts the base when it initialises (a snapshot taken before that, as at a run log's
+    # start on a daemon just started, would otherwise restore to the origin: every pose a lever arm off).
+    position, yaw = fuser._initial
+    arrays["initial_pose"] = np.append(np.asarray(position, dtype=np.float64), yaw)
     buffer = io.BytesIO()
     np.savez(buffer, allow_pickle=False, **arrays)
     scalars = {f"ekf.{name}": float(getattr(ekf, name)) for name in _EKF_SCALARS}
@@ -52,13 +56,21 @@ def take_snapshot(t: float, fuser: PoseFuser, queued: Iterable[SensorMessage] = 
     return FusionSnapshot(t, buffer.getvalue(), scalars, counters, heap, [encode(m) for m in queued])
 
 
-def restore(snapshot: FusionSnapshot, config: FusionConfig, motors: MotorsConfig) -> tuple[PoseFuser, list[Any]]:
-    """A filter in the snapshot's state, and the messages that were waiting to be pushed into it."""
-    fuser = PoseFuser(config, motors)
+def restore(snapshot: FusionSnapshot, config: FusionConfig, motors: MotorsConfig,
+            initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[PoseFuser, list[Any]]:
+    """A filter in the snapshot's state, and the messages that were waiting to be pushed into it.
+
+    `initial_pose` (x, y, yaw of the base) is where a filter not yet initialised will start, for snapshots
+    that predate `initial_pose` in their arrays: the daemon's start pose, `survey.start_pose(config)`.
+    """
+    x, y, yaw = initial_pose
+    fuser = PoseFuser(config, motors, initial_position=(x, y, 0.0), initial_yaw_rad=yaw)
     ekf = fuser.ekf
     try:
         with np.load(io.BytesIO(snapshot.arrays), allow_pickle=False) as data:
             arrays = {name: np.array(data[name]) for name in data.files}
+        if "initial_pose" in arrays:
+            fuser._initial = (arrays["initial_pose"][:3].copy(), float(arrays["initial_pose"][3]))
         for name in _EKF_ARRAYS:
             setattr(ekf, name, arrays[name])
         dim = arrays["kf_P"].shape[0]

@@ -9,6 +9,7 @@ combined (their median weighted by 1/sigma²): one velocity for every line, as t
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -23,6 +24,8 @@ from gprbot.gpr.chain.candidates import apex_candidates
 from gprbot.gpr.chain.prepare import prepare
 from gprbot.gpr.chain.reflectors import fit_reflectors
 from gprbot.gpr.chain.velocity import weighted_median
+
+log = logging.getLogger(__name__)
 
 MAX_OFF_LINE_M = 0.1  # a known top further than this (in plan) from every recorded trace is on no line
 
@@ -72,7 +75,9 @@ def calibrate_survey(lines: Mapping[int, BScan], gpr: GprConfig, tops: Sequence[
         result = calibrate(prep, fit_reflectors(prep, apex_candidates(prep)), known, prior_v)
         notes += [f"line {line}: {n}" for n in result.notes]
         if result.estimate is not None and result.estimate.sigma > 0:
-            votes.append((result.estimate.v, result.estimate.sigma, f"line {line}: {result.estimate.method}"))
+            where = ", ".join(f"{100 * k.top_m:.1f} cm at {k.x_m:.2f} m along it" for k in known)
+            votes.append((result.estimate.v, result.estimate.sigma, f"line {line}: {where}"))
+            log.info("known tops on line %d: %s", line, result.estimate.method)
     if not votes:
         return SurveyCalibration(None, math.nan, "", tuple(notes))
     v = weighted_median(np.array([a for a, _, _ in votes]), np.array([1.0 / s**2 for _, s, _ in votes]))
