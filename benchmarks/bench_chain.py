@@ -22,7 +22,6 @@ from gprbot.gpr.chain.prepare import prepare
 from gprbot.gpr.chain.reflectors import fit_reflectors
 from gprbot.gpr.chain.run import interpret
 from gprbot.gpr.chain.velocity import estimate_velocity
-from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.pipeline import migrationnet_sizer
 
 TRACES = 100
@@ -63,13 +62,13 @@ def _median(run: list[tuple[str, BScan, GprConfig]], velocity: bool, sized: bool
     """(median, 90th percentile) wall seconds per B-scan, and the median CPU seconds of this process.
 
     On a shared machine the wall time grows with the load; the CPU time is what the chain itself costs.
-    `sized`: with MigrationNet's radii for the pipes the curves do not measure (`gprbot interpret`'s default),
-    its preprocessing and inference included.
+    `sized`: with MigrationNet's radii for the pipes the curves do not measure (`interpretation.radius_from:
+    migrationnet`), its preprocessing and inference included.
     """
     times, cpu = [], []
     for _, b, gpr in run:
         start, start_cpu = time.perf_counter(), time.process_time()
-        sizer = migrationnet_sizer(preprocess(b, gpr), replace(Config(), gpr=gpr)) if sized else None
+        sizer = migrationnet_sizer(b, replace(Config(), gpr=gpr)) if sized else None
         interpret(b, gpr, 0.1 if velocity else None, sizer=sizer)
         times.append(time.perf_counter() - start)
         cpu.append(time.process_time() - start_cpu)
@@ -85,7 +84,7 @@ def main() -> None:
     except ImportError:
         print("(validation/ not importable: analytic lines only)")
     interpret(lines[0][1], lines[0][2])  # warm-up (imports, caches)
-    migrationnet_sizer(preprocess(lines[0][1], lines[0][2]), Config())  # loads the model once, as a process does
+    migrationnet_sizer(lines[0][1], Config())  # loads the model once, as a process does
     for velocity, sized in ((False, False), (True, False), (False, True)):
         med, p90, cpu = _median(lines, velocity, sized)
         print(f"{len(lines)} B-scans of {TRACES} traces, velocity {'given' if velocity else 'estimated'}"

@@ -137,6 +137,8 @@ def _known_top(text: str) -> KnownTop:
 
 def _site_top(text: str) -> tuple[float, float, float]:
     """--known-top X,Y:DEPTH (replay): a target's top in the site frame and its depth below the surface, metres."""
+    from gprbot.config_ranges import KNOWN_TOP_MAX_DEPTH_M
+
     try:
         where, depth = text.split(":")
         x, y = (float(part) for part in where.split(","))
@@ -144,8 +146,9 @@ def _site_top(text: str) -> tuple[float, float, float]:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(f"expected X,Y:DEPTH in metres (site frame), e.g. 0.85,0.40:0.06 "
                                          f"(got {text!r}; {exc})") from exc
-    if not all(math.isfinite(v) for v in top) or not 0.0 < top[2] <= 5.0:
-        raise argparse.ArgumentTypeError(f"expected finite X,Y and a depth in (0, 5] m, got {text!r}")
+    if not all(math.isfinite(v) for v in top) or not 0.0 < top[2] <= KNOWN_TOP_MAX_DEPTH_M:
+        raise argparse.ArgumentTypeError(f"expected finite X,Y and a depth in (0, {KNOWN_TOP_MAX_DEPTH_M:g}] m, "
+                                         f"got {text!r}")
     return top
 
 

@@ -124,6 +124,9 @@ RANGES: dict[str, Range] = {
 }
 
 
+KNOWN_TOP_MAX_DEPTH_M = 5.0  # a known cover deeper than this is no slab's (gpr.known_tops, replay --known-top)
+
+
 def check_ranges(config: Any) -> None:
     """Raise ConfigError (naming the key path) for the first value outside its range or not finite."""
     _walk(config, "")
@@ -165,9 +168,9 @@ def _check_relations(config: Any) -> None:
         raise ConfigError("gpr.known_tops: the velocity is fixed by gpr.eps_r already; set one of the two "
                           "(eps_r: null to calibrate on the known tops)")
     for i, (_, _, depth) in enumerate(gpr.known_tops):
-        if not 0.0 < depth <= 5.0:
+        if not 0.0 < depth <= KNOWN_TOP_MAX_DEPTH_M:
             raise ConfigError(f"gpr.known_tops[{i}]: the third number is the depth of the target's top below the "
-                              f"surface, in (0, 5] m; got {depth:g}")
+                              f"surface, in (0, {KNOWN_TOP_MAX_DEPTH_M:g}] m; got {depth:g}")
     if device.points_per_trace != gpr.samples:
         raise ConfigError(f"gpr_device.points_per_trace: must equal gpr.samples ({gpr.samples}), got "
                           f"{device.points_per_trace}; leave it out to derive it from gpr")

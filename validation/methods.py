@@ -44,13 +44,12 @@ def run_chain(bscan: BScan, gpr: GprConfig, velocity: float | None,
     (None: as the product's default, `InterpretationConfig.radius_from`)."""
     from gprbot.config import Config
     from gprbot.gpr.chain.run import interpret
-    from gprbot.gpr.preprocess import preprocess
     from gprbot.infer.pipeline import migrationnet_sizer
 
     interp = InterpretationConfig()
     cfg = replace(Config(), gpr=gpr, interpretation=replace(interp, radius_from=radius_from or interp.radius_from))
     start = time.perf_counter()
-    sizer = migrationnet_sizer(preprocess(bscan, gpr), cfg)
+    sizer = migrationnet_sizer(bscan, cfg)
     result = interpret(bscan, gpr, velocity, sizer=sizer)
     seconds = time.perf_counter() - start
     found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in result.detections)

@@ -115,7 +115,7 @@ def _sizer(bscan: BScan, gpr: GprConfig, cfg: Config) -> tuple[Sizer | None, lis
     from gprbot.infer.pipeline import migrationnet_sizer
 
     try:
-        return migrationnet_sizer(preprocess(bscan, gpr), replace(cfg, gpr=gpr)), []
+        return migrationnet_sizer(bscan, replace(cfg, gpr=gpr)), []
     except GprbotError as exc:
         return None, [f"radii the hyperbolas do not measure are left unmeasured: {exc}"]
 

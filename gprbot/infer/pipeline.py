@@ -28,7 +28,7 @@ from gprbot.gpr.chain.velocity import weighted_median
 from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint, VelocityEstimate, nearest_hint
+from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint, nearest_hint
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.known_tops import calibrate_survey
 from gprbot.infer.migrationnet import MigrationNetInterpreter
@@ -61,30 +61,29 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> SurveyVeloci
     hints = estimate.crossings if estimate is not None else ()
     if cfg.gpr.eps_r is not None:
         return SurveyVelocity(velocity_from_eps(cfg.gpr.eps_r), False, hints, "from the configured eps_r")
+    # The survey's hyperbola fits may find none to use; the interpretation chain's migration focus often still
+    # does (the FDTD dev half laid on survey lines: 5 of the 6 surveys refused for want of a velocity).
+    if estimate is not None:
+        found = SurveyVelocity(float(estimate.v), True, hints, "estimated from all lines' hyperbolas")
+    else:
+        try:
+            found = SurveyVelocity(chain_survey_velocity(list(processed.values()), cfg), True, (),
+                                   "estimated from the lines' diffractions (migration focus)")
+        except InterpretationError:
+            if not cfg.gpr.known_tops:
+                raise
+            found = None
     if cfg.gpr.known_tops:
-        prior = _rough_velocity(processed, cfg, estimate)
-        calibration = calibrate_survey(processed, cfg.gpr, cfg.gpr.known_tops, prior)
+        # The hyperbolas' velocity tells each known top's apex from its neighbours' (`calibrate.apex_near`).
+        calibration = calibrate_survey(processed, cfg.gpr, cfg.gpr.known_tops, found.v if found else None)
         for note in calibration.notes:
             log.warning("known tops: %s", note)
         if calibration.v is not None:
             return SurveyVelocity(calibration.v, False, hints, f"{calibration.method}, ±{calibration.sigma:.4f} m/ns")
         log.warning("no known top could be used (above): the velocity is estimated from the hyperbolas")
-    if estimate is None:
-        # The survey's hyperbola fits found none to use; the interpretation chain's migration focus often still
-        # does (the FDTD dev half laid on survey lines: 5 of the 6 surveys refused for want of a velocity).
-        return SurveyVelocity(chain_survey_velocity(list(processed.values()), cfg), True, (),
-                              "estimated from the lines' diffractions (migration focus)")
-    return SurveyVelocity(float(estimate.v), True, hints, "estimated from all lines' hyperbolas")
-
-
-def _rough_velocity(processed: Mapping[int, BScan], cfg: Config, estimate: VelocityEstimate | None) -> float | None:
-    """The hyperbolas' velocity (the survey fit's, else the chain's votes), to match known tops to their apexes."""
-    if estimate is not None:
-        return float(estimate.v)
-    try:
-        return chain_survey_velocity(list(processed.values()), cfg)
-    except InterpretationError:
-        return None
+    if found is None:
+        raise InterpretationError(NO_HYPERBOLA)
+    return found
 
 
 def chain_survey_velocity(lines: Sequence[BScan], cfg: Config) -> float:
@@ -149,14 +148,16 @@ def line_section(
     return interpret_bscan(processed, cfg.gpr, cfg.interpretation, velocity, crossing_hints=hints)
 
 
-def migrationnet_sizer(processed: BScan, cfg: Config) -> Callable[[float], tuple[Detection, ...]] | None:
-    """MigrationNet's pipe blobs on a preprocessed line at a velocity, for the chain's radii (`chain.sizing`); None
-    when `interpretation.radius_from` is "fit". A model that cannot be loaded raises its ModelError."""
+def migrationnet_sizer(bscan: BScan, cfg: Config) -> Callable[[float], tuple[Detection, ...]] | None:
+    """MigrationNet's pipe blobs on a line at a velocity, for the chain's radii (`chain.sizing`); None when
+    `interpretation.radius_from` is "fit". The line may be raw or preprocessed: MigrationNet's depth section
+    preprocesses it, and preprocessing skips the steps already done. A model that cannot be loaded raises
+    its ModelError."""
     if cfg.interpretation.radius_from != "migrationnet":
         return None
     net = migrationnet_interpreter(cfg.interpretation.migrationnet_model, cfg.reconstruction.model_threads,
                                    cfg.models_dir)
-    return lambda v: net.interpret(processed, cfg.gpr, cfg.interpretation, v).detections
+    return lambda v: net.interpret(bscan, cfg.gpr, cfg.interpretation, v).detections
 
 
 def survey_hints(processed: BScan, hints: Sequence[CrossingHint]) -> Callable[[float], SurveyHint]:
