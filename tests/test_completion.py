@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from gprbot.config import ReconstructionConfig
 from gprbot.reconstruct.completion import PipeModel, geometric_completion, pipe_colors
 from gprbot.reconstruct.register import SliceCloud, register_slice
+from gprbot.reconstruct.slice_blobs import split_slice, survey_frame
 
 X_COLUMNS = np.arange(0.0, 2.0, 0.01)  # 1 cm traces
 DEPTHS = np.arange(0.0, 0.6, 0.005)  # 5 mm depth pixels
@@ -187,6 +188,23 @@ def test_two_pipes_8_cm_apart_stay_two() -> None:
     assert len(result.pipes) == 2
     for pipe, true in zip(match(result.pipes, rods), rods, strict=True):
         check_pipe(pipe, true)
+
+
+def test_a_section_on_unevenly_spaced_columns_is_one_blob() -> None:
+    """A line's mask columns lie at its traces' registered positions: pose noise spaces them unevenly and a
+    dropped trace leaves twice the pitch. One pipe's section must stay one blob, or its pieces become pipes."""
+    rng = np.random.default_rng(3)
+    pitch = 0.015
+    columns = np.arange(0.5, 0.9, pitch) + rng.uniform(-0.45, 0.45, 27) * pitch
+    columns = np.delete(columns, [8, 17])  # two dropped traces
+    depths = np.arange(0.3, 0.5, 0.0025)
+    xx, zz = np.meshgrid(columns, depths)
+    inside = ((xx - 0.7) / 0.12) ** 2 + ((zz - 0.4) / 0.09) ** 2 <= 1.0
+    points = np.column_stack([xx[inside], np.zeros(inside.sum()), -zz[inside]])
+    cloud = SliceCloud(0, points, np.array([1.0, 0.0]), pixel_pitch_m=(pitch, 0.0025))
+    frame = survey_frame([cloud])
+    assert np.max(np.diff(np.sort(columns))) > 2.0 * pitch  # the dropped traces' gaps
+    assert len(split_slice(0, cloud, frame)) == 1
 
 
 @pytest.mark.parametrize(
