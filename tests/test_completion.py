@@ -195,8 +195,8 @@ def test_a_section_on_unevenly_spaced_columns_is_one_blob() -> None:
     dropped trace leaves twice the pitch. One pipe's section must stay one blob, or its pieces become pipes."""
     rng = np.random.default_rng(3)
     pitch = 0.015
-    columns = np.arange(0.5, 0.9, pitch) + rng.uniform(-0.45, 0.45, 27) * pitch
-    columns = np.delete(columns, [8, 17])  # two dropped traces
+    traces = np.arange(0.5, 0.9, pitch)
+    columns = np.delete(traces + rng.uniform(-0.45, 0.45, traces.size) * pitch, [8, 17])  # two dropped traces
     depths = np.arange(0.3, 0.5, 0.0025)
     xx, zz = np.meshgrid(columns, depths)
     inside = ((xx - 0.7) / 0.12) ** 2 + ((zz - 0.4) / 0.09) ** 2 <= 1.0

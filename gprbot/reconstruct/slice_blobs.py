@@ -20,9 +20,9 @@ from gprbot.reconstruct.register import SliceCloud
 BLOB_LINK_M = 0.02  # mask pixels closer than this belong to the same blob
 # ... or closer than this many pixel pitches. A slice's columns sit at its traces' registered positions, which
 # pose noise spaces unevenly (one validation line: gaps of 1 to 26 mm at a 15 mm pitch), and a dropped trace
-# leaves a gap of two pitches: at 1.5 pitches one pipe's
-# section fell apart into side-by-side strips on a line (100 validation surveys: 90 extra pipes, 69 of them
-# pieces along a pipe found already); at 2.5, 24 extras and 3 more pipes found.
+# leaves a gap of two pitches: at 1.5 pitches one pipe's section fell apart into side-by-side strips on a line
+# (100 validation surveys: 90 extra pipes, 69 of them pieces along a pipe found already); at 2.5, 24 extras
+# and 3 more pipes found.
 BLOB_LINK_PITCHES = 2.5
 MIN_BLOB_POINTS = 3  # smaller blobs are speckle, not a pipe
 MIN_CORE_NEIGHBOURS = 4  # inside a pipe's section a pixel has ~10–25 neighbours within the link distance
