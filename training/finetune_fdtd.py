@@ -40,9 +40,9 @@ from gprbot.config import GprConfig
 from gprbot.gpr.migration import diffraction_times
 from gprbot.infer.migrationnet import DX_M, cut_tiles, depth_grid, depth_section
 from training.migration_data import build_split, load_split
-from training.migrationnet import MigrationNet, bce_dice_loss
+from training.migrationnet import MigrationNet
 from training.onnx_weights import check_parity, freeze_batch_norm, migrationnet_from_onnx
-from training.train_migrationnet import augment, evaluate
+from training.train_migrationnet import evaluate, train_step
 from validation.cases import Case, fdtd_cases
 from validation.evaluate import run_case, summary
 from validation.methods import METHODS, Method, run_migrationnet
@@ -181,13 +181,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
             j = torch.randint(len(x_sim), (args.batch - n_fdtd,), generator=gen).numpy()
             xb = torch.from_numpy(np.concatenate([x_fdtd[i], x_sim[j]]).astype(np.float32))
             yb = torch.from_numpy(np.concatenate([y_fdtd[i], y_sim[j]]).astype(np.float32))
-            xb, yb = augment(xb, yb, gen, args.layers)
-            loss = bce_dice_loss(net(xb), yb)
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            scheduler.step()
-            running += loss.item()
+            running += train_step(net, optimiser, scheduler, xb, yb, gen, args.layers)
         metrics: dict[str, Any] = {"epoch": epoch, "train_loss": running / STEPS_PER_EPOCH,
                                    "epoch_s": round(time.perf_counter() - t0, 1),
                                    "sim_val_iou": evaluate(net, x_val, y_val)["iou"]}

@@ -83,6 +83,18 @@ def augment(xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator,
     return xb, yb
 
 
+def train_step(net: MigrationNet, optimiser: torch.optim.Optimizer, scheduler: torch.optim.lr_scheduler.LRScheduler,
+               xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator, layers: float) -> float:
+    """One augmented BCE + Dice step on a batch (schedule advanced); returns the batch's loss."""
+    xb, yb = augment(xb, yb, gen, layers)
+    loss = bce_dice_loss(net(xb), yb)
+    optimiser.zero_grad()
+    loss.backward()
+    optimiser.step()
+    scheduler.step()
+    return float(loss.item())
+
+
 def layer_echoes(n: int, rows: int, cols: int, gen: torch.Generator, probability: float) -> torch.Tensor:
     """(n, 1, rows, cols) of zero or up to three layer echoes: a Ricker across depth along a dipping curve."""
     out = torch.zeros(n, 1, rows, cols)
@@ -169,13 +181,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             idx = np.sort(order[step * args.batch:(step + 1) * args.batch])
             xb = torch.from_numpy(x_train[idx].astype(np.float32))
             yb = torch.from_numpy(y_train[idx].astype(np.float32))
-            xb, yb = augment(xb, yb, gen, args.layers)
-            loss = bce_dice_loss(net(xb), yb)
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            scheduler.step()
-            running += loss.item()
+            running += train_step(net, optimiser, scheduler, xb, yb, gen, args.layers)
             if (step + 1) % 50 == 0:
                 print(f"epoch {epoch + 1} step {step + 1}/{steps_per_epoch} loss {running / (step + 1):.4f} "
                       f"{time.perf_counter() - t0:.0f} s", flush=True)
