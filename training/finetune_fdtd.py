@@ -19,9 +19,9 @@ steps; a checkpoint per epoch in the shared format (tools/export_onnx.py exports
 card's threshold and min_peak. Each epoch is also scored on the simulator's validation split, since
 a fine-tune may forget the simulated lines the survey tables are made of. The dev half is split into
 two folds (alternate scenes in name order): with --fold k the run trains on the other fold and every
-epoch is scored on fold k (velocity given); these chose the recipe (the card's "selection"), and the
-shipped run trains on all of it. Only --report-test reads the FDTD test half, to report models
-already chosen (never to choose one).
+epoch is scored on fold k (velocity given, and estimated by the chain); these chose the recipe (the
+card's "selection"), and the shipped run trains on all of it. Only --report-test reads the FDTD test
+half, to report models already chosen (never to choose one).
 """
 
 from __future__ import annotations
@@ -108,10 +108,18 @@ def fdtd_tiles(cases: list[Case], scales: tuple[float, ...] = VELOCITY_SCALES) -
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
-def score(onnx_path: Path, cases: list[Case]) -> dict[str, str]:
-    """validation.evaluate's summary of MigrationNet (this ONNX model) on the cases, velocity given."""
+def score(onnx_path: Path, cases: list[Case], mode: str = "given") -> dict[str, str]:
+    """validation.evaluate's summary of MigrationNet (this ONNX model) on the cases, velocity given or estimated."""
     methods: dict[str, Method] = {**METHODS, "migrationnet": functools.partial(run_migrationnet, model=str(onnx_path))}
-    return summary([run_case(c, "migrationnet", "given", methods) for c in cases])
+    return summary([run_case(c, "migrationnet", mode, methods) for c in cases])
+
+
+def held_out_figures(onnx_path: Path, cases: list[Case]) -> dict[str, str]:
+    """The held-out fold's figures with the velocity given (held_…) and estimated by the chain (held_est_…)."""
+    given = score(onnx_path, cases)
+    estimated = score(onnx_path, cases, "estimated")
+    return {**{f"held_{k}": v for k, v in given.items() if k in _REPORT_KEYS},
+            **{f"held_est_{k}": v for k, v in estimated.items() if k in _REPORT_KEYS}}
 
 
 def _card(onnx_path: Path) -> dict[str, Any]:
@@ -166,8 +174,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
                           "held_out": [c.name for c in held_out]}) + "\n")
     history = []
     if held_out:
-        base = {"epoch": 0, "sim_val_iou": evaluate(net, x_val, y_val)["iou"],
-                **{f"held_{k}": v for k, v in score(args.init, held_out).items() if k in _REPORT_KEYS}}
+        base = {"epoch": 0, "sim_val_iou": evaluate(net, x_val, y_val)["iou"], **held_out_figures(args.init, held_out)}
         print(json.dumps(base, ensure_ascii=False), flush=True)
         log.write(json.dumps(base, ensure_ascii=False) + "\n")
     n_fdtd = round(args.batch * args.fdtd_share)
@@ -188,7 +195,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         path = CHECKPOINTS / f"{args.name}_e{epoch}.pt"
         save_checkpoint(path, model, epoch, args, metrics, [c.name for c in train_cases])
         if held_out:
-            metrics.update({f"held_{k}": v for k, v in score(export(path), held_out).items() if k in _REPORT_KEYS})
+            metrics.update(held_out_figures(export(path), held_out))
         history.append(metrics)
         log.write(json.dumps(metrics, ensure_ascii=False) + "\n")
         log.flush()
