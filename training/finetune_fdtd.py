@@ -132,8 +132,8 @@ def save_checkpoint(path: Path, model: torch.nn.Module, epoch: int, args: argpar
     card = _card(args.init)
     sim = "train split" if args.sim_limit is None else f"train split, first {args.sim_limit} scenes"
     data = (f"fine-tune of {args.init.name} (sha256 {card['sha256'][:12]}) on FDTD dev scenes "
-            f"{', '.join(trained_on)} at velocity × {tuple(args.velocity_scales)}, each batch half simulated "
-            f"training tiles (training.migration_data cache, {sim})")
+            f"{', '.join(trained_on)} at velocity × {tuple(args.velocity_scales)}, {1 - args.fdtd_share:.0%} of each "
+            f"batch simulated training tiles (training.migration_data cache, {sim})")
     torch.save({"model": model.state_dict(), "model_config": {"width": 8}, "epoch": epoch, "seed": args.seed,
                 "metrics": {**metrics, "threshold": card.get("threshold", 0.5), "min_peak": card.get("min_peak", 0.0)},
                 "data": data}, path)
