@@ -93,7 +93,7 @@ def test_a_survey_the_hyperbola_fits_find_no_velocity_on_gets_the_chains() -> No
     # fits find nothing to use, and the whole survey used to be refused for want of a velocity.
     case = next(c for c in fdtd_cases() if c.name == "two_pipes_900")
     survey = fdtd_survey(case, json.loads((FDTD_DATA / "two_pipes_900.json").read_text()))
-    cfg = eval_end_to_end.chain_config(load_config(), survey, "classical", "geometric")
+    cfg = eval_end_to_end.chain_config(load_config(), survey.gpr, "classical", "geometric")
     processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
     with pytest.raises(InterpretationError):
         estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
@@ -113,7 +113,7 @@ def test_a_line_too_short_to_interpret_is_left_out_of_the_survey_not_the_survey(
 
     case = next(c for c in fdtd_cases() if c.name == "pvc_air_1600")
     survey = fdtd_survey(case, json.loads((FDTD_DATA / "pvc_air_1600.json").read_text()))
-    cfg = eval_end_to_end.chain_config(load_config(), survey, "classical", "geometric")
+    cfg = eval_end_to_end.chain_config(load_config(), survey.gpr, "classical", "geometric")
     first = survey.bscans[min(survey.bscans)]
     stub = dataclasses.replace(first, data=first.data[:2], positions=first.positions[:2], times=first.times[:2],
                                position_std_m=None)  # a line the robot was stopped on just after it began

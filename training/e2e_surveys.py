@@ -73,14 +73,20 @@ def survey_region(spec: SurveySpec) -> Region:
     return planned_region(spec.start_xy, spec.length_m, spec.lines, spec.spacing_m, across_margin_m=half)
 
 
-def simulated_survey(index: int, data: Mapping[str, NDArray[Any]], base: GprConfig) -> Survey:
-    """Test sample `index` of the completion split: its scene simulated on every kept line (pose noise,
-    clutter, rebar, missing lines as drawn), scored in the sample's unit cube (training's normalisation)."""
-    seed = int(data["seed"][index])
+def simulated_lines(seed: int, base: GprConfig) -> tuple[Scene, SurveySpec, dict[int, BScan], GprConfig]:
+    """A random scene's survey simulated on every kept line (pose noise, clutter, rebar, missing lines as drawn),
+    and the antenna settings to interpret it with (eps_r None)."""
     scene, spec = scene_for_seed(seed)
     rng = np.random.default_rng([seed, _RNG_TAG])
     bscans = {line: simulate_line(scene, spec, line, rng) for line in spec.kept_lines()}
-    gpr = replace(gpr_config(spec, scene, base), eps_r=None)
+    return scene, spec, bscans, replace(gpr_config(spec, scene, base), eps_r=None)
+
+
+def simulated_survey(index: int, data: Mapping[str, NDArray[Any]], base: GprConfig) -> Survey:
+    """Test sample `index` of the completion split: its survey simulated (simulated_lines), scored in the
+    sample's unit cube (training's normalisation)."""
+    seed = int(data["seed"][index])
+    scene, spec, bscans, gpr = simulated_lines(seed, base)
     return Survey(f"seed {seed}", str(data["case"][index]), seed, bscans, gpr, scene, survey_region(spec),
                   velocity_from_eps(scene.slab.eps_r), np.asarray(data["dense"][index], dtype=np.float32),
                   np.asarray(data["centre"][index], dtype=np.float64), float(data["scale"][index]))

@@ -32,33 +32,24 @@ from gprbot.reconstruct.extension import survey_footprint
 from gprbot.reconstruct.register import resample_cloud
 from gprbot.simulated.evaluation import compare_to_truth
 from training.code_version import code_version
-from training.e2e_surveys import survey_region
+from training.e2e_surveys import simulated_lines, survey_region
 from training.eval_end_to_end import chain_config
-from training.migration_data import simulate_line
-from training.random_scenes import CASES, gpr_config, scene_for_seed, split_seeds
+from training.random_scenes import CASES, scene_for_seed, split_seeds
 
 CACHE = Path(__file__).resolve().parent / "cache"
 
 
 def cache_dir(method: str) -> Path:
     """Where the interpreted slices of one method live, keyed on the interpretation's code version."""
-    version = code_version(["gprbot.infer.pipeline", "training.migration_data", "training.random_scenes"])
+    version = code_version(["gprbot.infer.pipeline", "training.e2e_surveys"])
     return CACHE / f"completion_val_{method}_{version}"
-
-
-@dataclasses.dataclass(frozen=True)
-class _Survey:
-    gpr: Any
 
 
 def interpret_survey(seed: int, method: str) -> dict[str, Any]:
     """The interpreted slices and footprint of one val survey, velocity estimated."""
-    scene, spec = scene_for_seed(seed)
-    rng = np.random.default_rng([seed, 0xE2E])
-    bscans = {line: simulate_line(scene, spec, line, rng) for line in spec.kept_lines()}
     base = load_config()
-    gpr = dataclasses.replace(gpr_config(spec, scene, base.gpr), eps_r=None)
-    cfg = chain_config(base, _Survey(gpr), method, "geometric")  # type: ignore[arg-type]
+    _, _, bscans, gpr = simulated_lines(seed, base.gpr)
+    cfg = chain_config(base, gpr, method, "geometric")
     processed = {line: preprocess(b, cfg.gpr) for line, b in bscans.items()}
     velocity = survey_velocity(processed, cfg)
     slices = [interpret_line(line, b, cfg, velocity.v, velocity.hints).slice for line, b in processed.items()]

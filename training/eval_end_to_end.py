@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.config import Config, load_config
+from gprbot.config import Config, GprConfig, load_config
 from gprbot.errors import GprbotError
 from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.pipeline import complete_slices, interpret_line, survey_velocity
@@ -52,14 +52,14 @@ _RNG_TAG = 0xE2E
 NOTHING = np.zeros((1, 3), dtype=np.float32)  # "nothing found": one point at the centre of the unit cube
 
 
-def chain_config(base: Config, survey: Survey, method: str, completion: str) -> Config:
-    """The product config for one chain on one survey (its antenna settings; eps_r left unknown)."""
+def chain_config(base: Config, gpr: GprConfig, method: str, completion: str) -> Config:
+    """The product config for one chain on one survey, given its antenna settings (eps_r left unknown)."""
     reconstruction = dataclasses.replace(base.reconstruction, completion=completion)  # type: ignore[arg-type]
     if completion.startswith("refined_s"):
         reconstruction = dataclasses.replace(reconstruction, completion="refined",
                                              refiner_model=f"models/fit_refiner_{completion.split('_')[1]}.onnx")
     return dataclasses.replace(
-        base, gpr=survey.gpr, interpretation=dataclasses.replace(base.interpretation, method=method),
+        base, gpr=gpr, interpretation=dataclasses.replace(base.interpretation, method=method),
         reconstruction=reconstruction,
     )
 
@@ -94,7 +94,7 @@ def evaluate_survey(survey: Survey, base: Config) -> list[dict[str, Any]]:
         return {**head, "interpretation": method, "completion": completion, "refused": str(exc),
                 "velocity_err_rel": None, "interpret_s": None, **score_row(survey, empty, None)}
 
-    cfg = chain_config(base, survey, "classical", COMPLETIONS[0])
+    cfg = chain_config(base, survey.gpr, "classical", COMPLETIONS[0])
     try:
         processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
         velocity, _, hints, _ = survey_velocity(processed, cfg)
@@ -103,7 +103,7 @@ def evaluate_survey(survey: Survey, base: Config) -> list[dict[str, Any]]:
     footprint = survey_footprint({line: b.positions for line, b in processed.items()})
     rows = []
     for method in INTERPRETERS:
-        cfg = chain_config(base, survey, method, COMPLETIONS[0])
+        cfg = chain_config(base, survey.gpr, method, COMPLETIONS[0])
         start = time.perf_counter()
         try:
             slices = [interpret_line(line, b, cfg, velocity, hints).slice for line, b in processed.items()]
@@ -116,7 +116,7 @@ def evaluate_survey(survey: Survey, base: Config) -> list[dict[str, Any]]:
         sparse = resample_cloud(points, cfg.reconstruction.sparse_points, rng) if len(points) else points
         for completion in COMPLETIONS:
             try:  # each completion gets the same random stream, so they differ by the method alone
-                recon, _ = complete_slices(slices, sparse, chain_config(base, survey, method, completion),
+                recon, _ = complete_slices(slices, sparse, chain_config(base, survey.gpr, method, completion),
                                            np.random.default_rng([survey.seed, _RNG_TAG, 2]), footprint)
             except GprbotError as exc:
                 rows.append(refused(method, completion, exc))
