@@ -27,7 +27,6 @@ half, to report models already chosen (never to choose one).
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import time
 from pathlib import Path
@@ -42,10 +41,11 @@ from gprbot.infer.migrationnet import DX_M, cut_tiles, depth_grid, depth_section
 from training.migration_data import build_split, load_split
 from training.migrationnet import MigrationNet
 from training.onnx_weights import check_parity, freeze_batch_norm, migrationnet_from_onnx
+from training.select_fdtd import onnx_of
 from training.train_migrationnet import evaluate, train_step
 from validation.cases import Case, fdtd_cases
 from validation.evaluate import run_case, summary
-from validation.methods import METHODS, Method, run_migrationnet
+from validation.methods import methods_with_migrationnet
 
 ROOT = Path(__file__).resolve().parent
 CHECKPOINTS = ROOT / "checkpoints"
@@ -56,9 +56,14 @@ STEPS_PER_EPOCH = 50
 _REPORT_KEYS = ("pipes ≤3 cm", "pipes ≤1 cm", "radius ≤30 %", "false pipes / scene")
 
 
+def fdtd_half(half: str) -> list[Case]:
+    """The FDTD scenes of one half ("dev" or "test"), in name order."""
+    return sorted((c for c in fdtd_cases() if c.group == f"fdtd-{half}"), key=lambda c: c.name)
+
+
 def dev_folds() -> tuple[list[Case], list[Case]]:
     """The FDTD dev half in two folds: alternate scenes in name order."""
-    dev = sorted((c for c in fdtd_cases() if c.group == "fdtd-dev"), key=lambda c: c.name)
+    dev = fdtd_half("dev")
     return dev[0::2], dev[1::2]
 
 
@@ -110,7 +115,7 @@ def fdtd_tiles(cases: list[Case], scales: tuple[float, ...] = VELOCITY_SCALES) -
 
 def score(onnx_path: Path, cases: list[Case], mode: str = "given") -> dict[str, str]:
     """validation.evaluate's summary of MigrationNet (this ONNX model) on the cases, velocity given or estimated."""
-    methods: dict[str, Method] = {**METHODS, "migrationnet": functools.partial(run_migrationnet, model=str(onnx_path))}
+    methods = methods_with_migrationnet(onnx_path)
     return summary([run_case(c, "migrationnet", mode, methods) for c in cases])
 
 
@@ -137,13 +142,6 @@ def save_checkpoint(path: Path, model: torch.nn.Module, epoch: int, args: argpar
     torch.save({"model": model.state_dict(), "model_config": {"width": 8}, "epoch": epoch, "seed": args.seed,
                 "metrics": {**metrics, "threshold": card.get("threshold", 0.5), "min_peak": card.get("min_peak", 0.0)},
                 "data": data}, path)
-
-
-def export(checkpoint: Path) -> Path:
-    """The checkpoint as ONNX next to it (training.select_fdtd's exporter)."""
-    from training.select_fdtd import onnx_of
-
-    return onnx_of(checkpoint)
 
 
 def run(args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -195,7 +193,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         path = CHECKPOINTS / f"{args.name}_e{epoch}.pt"
         save_checkpoint(path, model, epoch, args, metrics, [c.name for c in train_cases])
         if held_out:
-            metrics.update(held_out_figures(export(path), held_out))
+            metrics.update(held_out_figures(onnx_of(path), held_out))
         history.append(metrics)
         log.write(json.dumps(metrics, ensure_ascii=False) + "\n")
         log.flush()
@@ -206,7 +204,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 def report_test(models: list[Path]) -> None:
     """Print the FDTD test half's figures (velocity given) of each ONNX model: a report, not a selection."""
-    test = sorted((c for c in fdtd_cases() if c.group == "fdtd-test"), key=lambda c: c.name)
+    test = fdtd_half("test")
     for model in models:
         figures = score(model.resolve(), test)
         print(f"{model} | fdtd-test (given) | " + " | ".join(f"{k} {figures[k]}" for k in _REPORT_KEYS), flush=True)

@@ -10,7 +10,6 @@ Each checkpoint is exported to ONNX next to it (…/onnx/NAME.onnx with its card
 from __future__ import annotations
 
 import argparse
-import functools
 import importlib.util
 import sys
 from pathlib import Path
@@ -18,7 +17,7 @@ from types import ModuleType
 
 from validation.cases import Case, fdtd_cases, real_cases
 from validation.evaluate import Row, run_case, summary
-from validation.methods import METHODS, run_migrationnet
+from validation.methods import methods_with_migrationnet
 from validation.scoring import match
 
 EXPORT_SCRIPT = Path(__file__).resolve().parent.parent / "tools" / "export_onnx.py"
@@ -55,7 +54,7 @@ def cases() -> list[Case]:
 
 def score_model(model: Path) -> dict[str, dict[str, str]]:
     """Summary figures per (group, mode) of one model."""
-    methods = {**METHODS, "migrationnet": functools.partial(run_migrationnet, model=str(onnx_of(model)))}
+    methods = methods_with_migrationnet(onnx_of(model))
     rows: list[Row] = []
     for case in cases():
         mode = "given" if case.velocity is not None and case.group != "real" else "estimated"

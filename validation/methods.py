@@ -8,10 +8,12 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -112,3 +114,8 @@ def run_chain_mask_radius(bscan: BScan, gpr: GprConfig, velocity: float | None) 
 
 METHODS: dict[str, Method] = {"chain": run_chain, "chain-mask-radius": run_chain_mask_radius, "legacy": run_legacy,
                               "migrationnet": run_migrationnet}
+
+
+def methods_with_migrationnet(model: Path | str) -> dict[str, Method]:
+    """METHODS with `migrationnet` running the ONNX file `model` instead of the shipped one (model selection)."""
+    return {**METHODS, "migrationnet": functools.partial(run_migrationnet, model=str(model))}
