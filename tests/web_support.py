@@ -131,6 +131,14 @@ def chromium(width: int = 1600, height: int = 1100) -> Any:
     return webdriver.Chrome(service=Service(CHROMEDRIVER or ""), options=options)
 
 
+def _navigating(exc: Exception) -> bool:
+    """Whether a WebDriver error only says the page was replaced under the element being read."""
+    if type(exc).__name__ in ("NoSuchElementException", "StaleElementReferenceException"):
+        return True
+    # Chromium 156 reports a node swapped out by a form post as an "unknown error" rather than a stale element.
+    return type(exc).__name__ == "WebDriverException" and "does not belong to the document" in str(exc)
+
+
 def wait_for(check: Callable[[], Any], timeout_s: float, what: str, poll_s: float = 0.1) -> Any:
     """Poll `check` until it returns something truthy; its value (AssertionError naming `what` on timeout)."""
     deadline = time.monotonic() + timeout_s
@@ -138,7 +146,7 @@ def wait_for(check: Callable[[], Any], timeout_s: float, what: str, poll_s: floa
         try:
             value = check()
         except Exception as exc:  # the page is navigating: an element not there yet, or gone stale
-            if type(exc).__name__ not in ("NoSuchElementException", "StaleElementReferenceException"):
+            if not _navigating(exc):
                 raise
             value = None
         if value:
