@@ -2,8 +2,9 @@
 
 - `chain`: the interpretation chain (gprbot.gpr.chain), the product's classical path;
 - `legacy`: the previous classical interpreter (gprbot.gpr.interpret), kept for comparison;
-- `migrationnet`: the shipped MigrationNet ONNX model on the migrated section (needs a velocity: the
-  chain's estimate is handed to it when none is given, and the table says so).
+- `migrationnet`: the shipped MigrationNet ONNX model on the migrated section as the product runs it: its pipes
+  confirmed against the chain's detections, and the chain's rebars (needs a velocity: the chain's estimate is
+  handed to it when none is given, and the table says so).
 """
 
 from __future__ import annotations
@@ -84,26 +85,33 @@ def run_legacy(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
 
 
 def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model: str | None = None) -> Outcome:
-    """MigrationNet (the shipped model, or the ONNX file `model`) on the section at the given velocity.
+    """MigrationNet (the shipped model, or the ONNX file `model`) as the product runs it: its pipes on the section at
+    the given velocity, confirmed against the chain's detections there (`gprbot.infer.confirm`), and the chain's rebars.
 
     Without a velocity it uses the chain's estimate.
     """
+    from gprbot.gpr.chain.run import interpret
     from gprbot.gpr.preprocess import preprocess
+    from gprbot.infer.confirm import confirm
     from gprbot.infer.pipeline import migrationnet_interpreter
 
-    note, estimated = "", False
-    if velocity is None:
-        chain = run_chain(bscan, gpr, None, "fit")
-        velocity, note, estimated = chain.velocity, "velocity from the chain", chain.velocity_estimated
     start = time.perf_counter()
     try:
-        net = migrationnet_interpreter(model or InterpretationConfig().migrationnet_model, 2)
-        section = net.interpret(preprocess(bscan, gpr), gpr, _interp_config(bscan, velocity), velocity)
+        chain = interpret(bscan, gpr, velocity)
     except GprbotError as exc:
-        return Outcome((), velocity, False, time.perf_counter() - start, f"failed: {exc}")
+        return Outcome((), velocity or math.nan, False, time.perf_counter() - start, f"failed: {exc}")
+    v, estimated = chain.velocity, chain.velocity_source == "estimated"
+    note = "" if velocity is not None else "velocity from the chain"
+    try:
+        net = migrationnet_interpreter(model or InterpretationConfig().migrationnet_model, 2)
+        section = net.interpret(preprocess(bscan, gpr), gpr, _interp_config(bscan, v), v)
+    except GprbotError as exc:
+        return Outcome((), v, estimated, time.perf_counter() - start, f"failed: {exc}")
+    confirmed = confirm(section.detections, chain.detections, chain.rebars)
     seconds = time.perf_counter() - start
-    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in section.detections)
-    return Outcome(found, velocity, estimated, seconds, note)
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in confirmed.kept)
+    found += tuple(Found(d.x_m, d.depth_m, d.radius_m, "rebar") for d in chain.rebars)
+    return Outcome(found, v, estimated, seconds, note)
 
 
 def run_chain_mask_radius(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:

@@ -20,6 +20,7 @@ from gprbot.config import Config, model_path
 from gprbot.errors import InterpretationError, ModelError
 from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.candidates import apex_candidates
+from gprbot.gpr.chain.classify import ClassifiedDetection
 from gprbot.gpr.chain.prepare import prepare
 from gprbot.gpr.chain.reflectors import fit_reflectors
 from gprbot.gpr.chain.run import SurveyHint, interpret
@@ -29,6 +30,7 @@ from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint, nearest_hint
+from gprbot.infer.confirm import confirm, without_blobs
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.known_tops import calibrate_survey
 from gprbot.infer.migrationnet import MigrationNetInterpreter
@@ -122,7 +124,15 @@ def interpret_line(
     """Interpret one preprocessed line (as configured) and register it in 3D."""
     section = line_section(processed, cfg, velocity, hints)
     if cfg.interpretation.method != "chain":  # the chain's section carries its own rebar rows
-        section = replace(section, rebars=line_rebars(processed, cfg, velocity))
+        found = chain_detections(processed, cfg, velocity)
+        rebars = tuple(d for d in found if d.kind == "rebar")
+        if cfg.interpretation.method == "migrationnet":
+            confirmed = confirm(section.detections, found, rebars)
+            for d, why in confirmed.dropped:
+                log.info("line %d: MigrationNet's blob at x %.3f m, depth %.3f m dropped: %s", line, d.x_m, d.depth_m,
+                         why)
+            section = without_blobs(section, [d for d, _ in confirmed.dropped])
+        section = replace(section, rebars=tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in rebars))
     cols = processed.position_at(section.x_m)
     std = processed.position_std_m
     pose_std = float(np.sqrt(np.mean(np.square(std)))) if std is not None and std.size else 0.0
@@ -169,13 +179,12 @@ def survey_hints(processed: BScan, hints: Sequence[CrossingHint]) -> Callable[[f
     return hint_at
 
 
-def line_rebars(processed: BScan, cfg: Config, velocity: float) -> tuple[Detection, ...]:
-    """The reinforcement bars on a line (the interpretation chain's rebar rows), at the survey's velocity."""
+def chain_detections(processed: BScan, cfg: Config, velocity: float) -> tuple[ClassifiedDetection, ...]:
+    """The interpretation chain's pipes and rebars on a line at the survey's velocity (none if it cannot run)."""
     try:
-        found = interpret(processed, cfg.gpr, velocity, depth_max_m=cfg.interpretation.depth_max_m)
+        return interpret(processed, cfg.gpr, velocity, depth_max_m=cfg.interpretation.depth_max_m).detections
     except InterpretationError:
         return ()
-    return tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in found.rebars)
 
 
 @functools.lru_cache(maxsize=2)
