@@ -1,4 +1,4 @@
-"""MigrationNet's pipes confirmed against the chain: echoes under a pipe and blobs on a rebar dropped, blobs unmasked."""
+"""MigrationNet's pipes confirmed against the chain: echoes and blobs on a rebar dropped, their blobs unmasked."""
 
 from __future__ import annotations
 
@@ -47,3 +47,4 @@ def test_a_dropped_blob_leaves_the_mask_and_the_others_stay() -> None:
     assert out.mask[np.argmin(np.abs(z - PIPE.depth_m)), np.argmin(np.abs(x - PIPE.x_m))]
     assert not out.mask[z > 0.2].any() and out.mask.sum() < mask.sum()
     assert section.mask.sum() == mask.sum()  # the input is not changed
+
