@@ -48,3 +48,23 @@ def test_a_dropped_blob_leaves_the_mask_and_the_others_stay() -> None:
     assert not out.mask[z > 0.2].any() and out.mask.sum() < mask.sum()
     assert section.mask.sum() == mask.sum()  # the input is not changed
 
+
+
+def test_the_survey_pipeline_leaves_an_echo_out_of_the_registered_slice() -> None:
+    """interpret_line with MigrationNet on an FDTD dev scene whose pipe's echo the network also marks."""
+    from dataclasses import replace
+
+    from gprbot.config import Config
+    from gprbot.gpr.preprocess import preprocess
+    from gprbot.infer.pipeline import interpret_line
+    from validation.cases import fdtd_cases
+
+    (case,) = [c for c in fdtd_cases() if c.name == "random_25"]
+    bscan, gpr = case.load()
+    base = Config()
+    cfg = replace(base, gpr=gpr, interpretation=replace(base.interpretation, method="migrationnet"))
+    result = interpret_line(0, preprocess(bscan, gpr), cfg, case.velocity or 0.0)
+    (pipe,) = result.section.detections
+    assert abs(pipe.depth_m - 0.100) <= 0.03
+    assert not result.section.mask[result.section.z_m > 0.2].any()  # the echo's blob left the mask too
+    assert len(result.slice.points) and float(result.slice.points[:, 2].min()) > -0.2

@@ -86,3 +86,22 @@ def test_two_known_tops_calibrate_velocity_and_time_zero(tmp_path: Path, capsys:
     assert result["velocity_source"] == "calibrated" and "2 known tops" in result["velocity_method"]
     assert abs(result["velocity_m_per_ns"] / 0.12239 - 1.0) <= 0.03  # +0.8 % (either top alone: -10 and -4 %)
     assert "moved" in result["time_zero_from"]
+
+
+def test_migrationnet_reports_a_pipe_once_and_says_which_echo_it_dropped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An FDTD dev scene (a 6.4 cm PVC pipe at 10 cm): MigrationNet also marks the pipe's echo 18 cm under it,
+    which the chain's hyperbolas do not confirm; detections.json has the pipe only, and a note says why."""
+    scene = Path(__file__).resolve().parents[1] / "validation" / "fdtd" / "data" / "random_25.DZT"
+    config = tmp_path / "learned.yaml"
+    config.write_text("interpretation:\n  method: migrationnet\n")
+    assert main(["interpret", str(scene), "--out", str(tmp_path / "out"), "--config", str(config),
+                 "--velocity", "0.124076", "--height", "0.0375", "--offset", "0.09", "--frequency", "704.5"]) == 0
+    result = json.loads((tmp_path / "out" / "detections.json").read_text())
+    assert result["method"] == "migrationnet"
+    (pipe,) = result["detections"]
+    assert abs(pipe["x_m"] - 0.169) <= 0.03 and abs(pipe["depth_m"] - 0.100) <= 0.03
+    (note,) = [n for n in result["notes"] if "not reported" in n]
+    assert "echoes" in note and "under the pipe at depth 0.1" in note
+    assert "not reported" in capsys.readouterr().out

@@ -21,7 +21,9 @@ a fine-tune may forget the simulated lines the survey tables are made of. The de
 two folds (alternate scenes in name order): with --fold k the run trains on the other fold and every
 epoch is scored on fold k (velocity given, and estimated by the chain); these chose the recipe (the
 card's "selection"), and the shipped run trains on all of it. Only --report-test reads the FDTD test
-half, to report models already chosen (never to choose one).
+half, to report models already chosen (never to choose one). Scores are validation's `migrationnet`
+method: since 362dd21 that is the product's, its pipes confirmed against the chain's (gprbot.infer.confirm)
+with the chain's rebars; the card's selection figures were measured before, on the network's pipes alone.
 """
 
 from __future__ import annotations
