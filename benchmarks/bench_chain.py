@@ -1,4 +1,4 @@
-"""Benchmark: the interpretation chain's time per 100-trace B-scan, velocity estimated and given, in-process.
+"""Benchmark: the interpretation's time per 100-trace B-scan (the chain, and MigrationNet as configured), in-process.
 
 Run: .venv/bin/python -m benchmarks.bench_chain — medians over B-scans of 100 traces: analytic lines
 (three pipes and a rebar row, 900 MHz, 512 samples), 100-trace pieces of the committed FDTD scenes
@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -58,39 +59,56 @@ def _pieces() -> list[tuple[str, BScan, GprConfig]]:
     return out
 
 
-def _median(run: list[tuple[str, BScan, GprConfig]], velocity: bool, sized: bool = False) -> tuple[float, float, float]:
-    """(median, 90th percentile) wall seconds per B-scan, and the median CPU seconds of this process.
+def _modes() -> dict[str, Callable[[BScan, GprConfig], object]]:
+    """What is timed per B-scan: the chain (velocity estimated, given, and with MigrationNet's radii where the
+    curve gives none) and, where validation/ is importable, `interpretation.method: migrationnet` as the product
+    runs it (the chain, the network on the section at the chain's velocity, the echo check)."""
+    def sized(b: BScan, gpr: GprConfig) -> object:
+        return interpret(b, gpr, sizer=migrationnet_sizer(b, replace(Config(), gpr=gpr)))
 
-    On a shared machine the wall time grows with the load; the CPU time is what the chain itself costs.
-    `sized`: with MigrationNet's radii for the pipes the curves do not measure (`interpretation.radius_from:
-    migrationnet`), its preprocessing and inference included.
-    """
-    times, cpu = [], []
-    for _, b, gpr in run:
-        start, start_cpu = time.perf_counter(), time.process_time()
-        sizer = migrationnet_sizer(b, replace(Config(), gpr=gpr)) if sized else None
-        interpret(b, gpr, 0.1 if velocity else None, sizer=sizer)
-        times.append(time.perf_counter() - start)
-        cpu.append(time.process_time() - start_cpu)
-    return statistics.median(times), float(np.percentile(times, 90)), statistics.median(cpu)
+    modes: dict[str, Callable[[BScan, GprConfig], object]] = {
+        "velocity estimated": lambda b, gpr: interpret(b, gpr),
+        "velocity given": lambda b, gpr: interpret(b, gpr, 0.1),
+        "velocity estimated, radii from MigrationNet where the curve gives none": sized,
+    }
+    try:
+        from validation.methods import run_migrationnet
+    except ImportError:
+        return modes
+    modes["velocity estimated, interpretation.method migrationnet"] = lambda b, gpr: run_migrationnet(b, gpr, None)
+    modes["velocity given, interpretation.method migrationnet"] = lambda b, gpr: run_migrationnet(b, gpr, 0.1)
+    return modes
 
 
 def main() -> None:
-    """Print the medians and one run's stage split."""
+    """Print the medians (every mode timed on each B-scan in turn, so that a machine whose speed drifts during
+    the run weighs on all alike) and one run's stage split."""
     print(f"machine: {machine_description()}")
     lines = [(f"analytic {s}", *_analytic(s)) for s in range(10)]
     try:
         lines += _pieces()
     except ImportError:
         print("(validation/ not importable: analytic lines only)")
-    interpret(lines[0][1], lines[0][2])  # warm-up (imports, caches)
-    migrationnet_sizer(lines[0][1], Config())  # loads the model once, as a process does
-    for velocity, sized in ((False, False), (True, False), (False, True)):
-        med, p90, cpu = _median(lines, velocity, sized)
-        print(f"{len(lines)} B-scans of {TRACES} traces, velocity {'given' if velocity else 'estimated'}"
-              f"{', radii from MigrationNet where the curve gives none' if sized else ''}: "
-              f"median {med * 1000:.0f} ms, p90 {p90 * 1000:.0f} ms per B-scan (median CPU {cpu * 1000:.0f} ms)")
-    _, b, gpr = lines[0]
+    modes = _modes()
+    for run in modes.values():  # warm-up: imports, caches, the model loaded once as a process does
+        run(lines[0][1], lines[0][2])
+    times: dict[str, list[float]] = {name: [] for name in modes}
+    cpu: dict[str, list[float]] = {name: [] for name in modes}
+    for _, b, gpr in lines:
+        for name, run in modes.items():
+            start, start_cpu = time.perf_counter(), time.process_time()
+            run(b, gpr)
+            times[name].append(time.perf_counter() - start)
+            cpu[name].append(time.process_time() - start_cpu)
+    for name in modes:
+        print(f"{len(lines)} B-scans of {TRACES} traces, {name}: median {statistics.median(times[name]) * 1000:.0f} "
+              f"ms, p90 {np.percentile(times[name], 90) * 1000:.0f} ms per B-scan "
+              f"(median CPU {statistics.median(cpu[name]) * 1000:.0f} ms)")
+    _stage_split(lines[0][1], lines[0][2])
+
+
+def _stage_split(b: BScan, gpr: GprConfig) -> None:
+    """Print how one line's time divides between the chain's stages."""
     t = [time.perf_counter()]
     prep = prepare(b, gpr)
     t.append(time.perf_counter())
