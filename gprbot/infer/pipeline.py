@@ -124,15 +124,7 @@ def interpret_line(
     """Interpret one preprocessed line (as configured) and register it in 3D."""
     section = line_section(processed, cfg, velocity, hints)
     if cfg.interpretation.method != "chain":  # the chain's section carries its own rebar rows
-        found = chain_detections(processed, cfg, velocity)
-        rebars = tuple(d for d in found if d.kind == "rebar")
-        if cfg.interpretation.method == "migrationnet":
-            confirmed = confirm(section.detections, found, rebars)
-            for d, why in confirmed.dropped:
-                log.info("line %d: MigrationNet's blob at x %.3f m, depth %.3f m dropped: %s", line, d.x_m, d.depth_m,
-                         why)
-            section = without_blobs(section, [d for d, _ in confirmed.dropped])
-        section = replace(section, rebars=tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in rebars))
+        section = checked_by_chain(line, section, processed, cfg, velocity)
     cols = processed.position_at(section.x_m)
     std = processed.position_std_m
     pose_std = float(np.sqrt(np.mean(np.square(std)))) if std is not None and std.size else 0.0
@@ -177,6 +169,19 @@ def survey_hints(processed: BScan, hints: Sequence[CrossingHint]) -> Callable[[f
         nearest = nearest_hint(hints, processed.position_at(np.array([x_m]))[0, :2])
         return SurveyHint() if nearest is None else SurveyHint(nearest.sin_cross, nearest.radius_m)
     return hint_at
+
+
+def checked_by_chain(line: int, section: CrossSection, processed: BScan, cfg: Config, velocity: float) -> CrossSection:
+    """A line's section with the chain's rebar rows added, and MigrationNet's pipes confirmed against the chain's
+    detections (`gprbot.infer.confirm`): its echoes and the blobs on a bar leave the section and its mask."""
+    found = chain_detections(processed, cfg, velocity)
+    rebars = tuple(d for d in found if d.kind == "rebar")
+    if cfg.interpretation.method == "migrationnet":
+        confirmed = confirm(section.detections, found, rebars)
+        for d, why in confirmed.dropped:
+            log.info("line %d: MigrationNet's blob at x %.3f m, depth %.3f m dropped: %s", line, d.x_m, d.depth_m, why)
+        section = without_blobs(section, [d for d, _ in confirmed.dropped])
+    return replace(section, rebars=tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in rebars))
 
 
 def chain_detections(processed: BScan, cfg: Config, velocity: float) -> tuple[ClassifiedDetection, ...]:
