@@ -92,7 +92,7 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model
     """
     from gprbot.gpr.chain.run import interpret
     from gprbot.gpr.preprocess import preprocess
-    from gprbot.infer.confirm import confirm
+    from gprbot.infer.confirm import confirmed_section
     from gprbot.infer.pipeline import migrationnet_interpreter
 
     start = time.perf_counter()
@@ -107,9 +107,9 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model
         section = net.interpret(preprocess(bscan, gpr), gpr, _interp_config(bscan, v), v)
     except GprbotError as exc:
         return Outcome((), v, estimated, time.perf_counter() - start, f"failed: {exc}")
-    confirmed = confirm(section.detections, chain.detections, chain.rebars)
+    section, _ = confirmed_section(section, chain.detections, chain.rebars)
     seconds = time.perf_counter() - start
-    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in confirmed.kept)
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in section.detections)
     found += tuple(Found(d.x_m, d.depth_m, d.radius_m, "rebar") for d in chain.rebars)
     return Outcome(found, v, estimated, seconds, note)
 

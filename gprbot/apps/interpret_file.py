@@ -20,7 +20,7 @@ from gprbot.gpr.formats import Radargram, read_radargram
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
 from gprbot.gpr.traveltime import velocity_from_eps
-from gprbot.infer.confirm import confirm, without_blobs
+from gprbot.infer.confirm import confirmed_section
 from gprbot.outputs.pipes_json import write_json_atomic
 
 __all__ = [
@@ -186,14 +186,14 @@ def interpret_file(
     pipes = [_detection_json(d) for d in result.pipes]
     if method == "migrationnet":
         interp = replace(cfg.interpretation, depth_max_m=float(section.z_m[-1]))
-        net = _migrationnet_section(bscan, gpr, interp, result.velocity)
-        confirmed = confirm(net.detections, result.detections, result.rebars)
-        section = replace(without_blobs(net, [d for d, _ in confirmed.dropped]), rebars=section.rebars)
+        net, dropped = confirmed_section(_migrationnet_section(bscan, gpr, interp, result.velocity),
+                                         result.detections, result.rebars)
+        section = replace(net, rebars=section.rebars)
         pipes = [{"x_m": round(d.x_m, 4), "depth_m": round(d.depth_m, 4), "radius_m": round(d.radius_m, 4),
                   "confidence": round(d.score, 3)} for d in section.detections]
         notes.append("pipes from MigrationNet (interpretation.method: migrationnet); rebars, velocity from the chain")
         notes += [f"MigrationNet's blob at x {d.x_m:.3f} m, depth {d.depth_m:.3f} m not reported: {why}"
-                  for d, why in confirmed.dropped]
+                  for d, why in dropped]
     seconds = time.perf_counter() - start
     prep = result.prepared
     write_json_atomic(

@@ -64,6 +64,14 @@ def confirm(pipes: Sequence[Detection], chain_found: Sequence[Located], chain_re
     return Confirmed(tuple(kept), tuple(dropped))
 
 
+def confirmed_section(section: CrossSection, chain_found: Sequence[Located],
+                      chain_rebars: Sequence[Located]) -> tuple[CrossSection, tuple[tuple[Detection, str], ...]]:
+    """MigrationNet's section with the blobs `confirm` drops taken out of its detections and mask, and those dropped
+    with the reason."""
+    confirmed = confirm(section.detections, chain_found, chain_rebars)
+    return without_blobs(section, [d for d, _ in confirmed.dropped]), confirmed.dropped
+
+
 def without_blobs(section: CrossSection, dropped: Sequence[Detection]) -> CrossSection:
     """The section with the dropped detections' blobs taken out of its mask (registration reads the mask)."""
     if not dropped:

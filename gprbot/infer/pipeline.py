@@ -30,7 +30,7 @@ from gprbot.gpr.interpret import estimate_velocity, interpret_bscan
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.traveltime import velocity_from_eps
 from gprbot.gpr.velocity import NO_HYPERBOLA, CrossingHint, nearest_hint
-from gprbot.infer.confirm import confirm, without_blobs
+from gprbot.infer.confirm import confirmed_section
 from gprbot.infer.gprnet import GprnetCompletion, gprnet_reconstruction
 from gprbot.infer.known_tops import calibrate_survey
 from gprbot.infer.migrationnet import MigrationNetInterpreter
@@ -177,10 +177,9 @@ def checked_by_chain(line: int, section: CrossSection, processed: BScan, cfg: Co
     found = chain_detections(processed, cfg, velocity)
     rebars = tuple(d for d in found if d.kind == "rebar")
     if cfg.interpretation.method == "migrationnet":
-        confirmed = confirm(section.detections, found, rebars)
-        for d, why in confirmed.dropped:
+        section, dropped = confirmed_section(section, found, rebars)
+        for d, why in dropped:
             log.info("line %d: MigrationNet's blob at x %.3f m, depth %.3f m dropped: %s", line, d.x_m, d.depth_m, why)
-        section = without_blobs(section, [d for d, _ in confirmed.dropped])
     return replace(section, rebars=tuple(Detection(d.x_m, d.depth_m, d.radius_m, d.confidence) for d in rebars))
 
 
