@@ -3,6 +3,7 @@
     python -m training.finetune_fdtd --fold 0 --name ft_fold0     # train on dev fold 1, score fold 0 per epoch
     python -m training.finetune_fdtd --fold all --name migrationnet_fdtd   # the shipped run: the whole dev half
     python -m training.finetune_fdtd --report-test A.onnx B.onnx  # the FDTD test half, report only
+    python -m training.finetune_fdtd --score-folds ft_fold0_e4.pt ft_fold1_e4.pt  # the dev half out of fold
 
 The simulator-only network (training/base/migrationnet_sim.onnx, shipped up to 85d6ecc) never saw
 what gprMax's B-scans show: a dipole's wavelet, near-field flanks, real PVC walls, rebar shadows.
@@ -212,11 +213,26 @@ def report_test(models: list[Path]) -> None:
         print(f"{model} | fdtd-test (given) | " + " | ".join(f"{k} {figures[k]}" for k in _REPORT_KEYS), flush=True)
 
 
+def score_folds(checkpoints: list[Path]) -> None:
+    """Print the dev half scored out of fold: each fold by the checkpoint trained on the other (fold 0's first),
+    velocity given and estimated by the chain — how a rule downstream of the network is judged on the dev half."""
+    given, estimated = [], []
+    for model, fold in zip(checkpoints, dev_folds(), strict=True):
+        methods = methods_with_migrationnet(onnx_of(model))
+        given += [run_case(c, "migrationnet", "given", methods) for c in fold]
+        estimated += [run_case(c, "migrationnet", "estimated", methods) for c in fold]
+    for mode, rows in (("given", given), ("estimated", estimated)):
+        figures = summary(rows)
+        print(f"fdtd-dev out of fold ({mode}) | " + " | ".join(f"{k} {figures[k]}" for k in _REPORT_KEYS), flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI."""
     parser = argparse.ArgumentParser(prog="python -m training.finetune_fdtd", description=__doc__.splitlines()[0])
     parser.add_argument("--report-test", type=Path, nargs="+", default=None, metavar="ONNX",
                         help="only report these ONNX models on the FDTD test half (velocity given)")
+    parser.add_argument("--score-folds", type=Path, nargs=2, default=None, metavar=("FOLD0", "FOLD1"),
+                        help="only score the dev half out of fold: fold 0 by FOLD0 (trained with --fold 0), 1 by FOLD1")
     parser.add_argument("--fold", choices=("0", "1", "all"), default="all",
                         help="the dev fold held out and scored (0 or 1), or all: train on the whole dev half")
     parser.add_argument("--init", type=Path, default=BASE, help="the ONNX model to start from (its card beside it)")
@@ -234,6 +250,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.report_test:
         report_test(args.report_test)
+        return 0
+    if args.score_folds:
+        score_folds(args.score_folds)
         return 0
     run(args)
     return 0
