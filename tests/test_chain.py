@@ -165,6 +165,20 @@ def test_echo_spots_ringing_multiple_and_crossing_flanks() -> None:
     assert not is_echo_spot(Spot(0.45, 0.2, 1.0, 1.0, 0), pair, wavelength)  # between them at their depth
 
 
+def test_a_deep_spot_is_judged_against_the_image_below_the_direct_wave() -> None:
+    """The direct wave's row migrates to the brightest cell by far; a deep focus is a fraction of a per cent of
+    it (the SU trench line: 0.2-0.7 %) and must still be a spot: the share is of the cells a target may be in."""
+    from gprbot.gpr.chain.spots import find_spots
+
+    prep = prepare(_line([SyntheticTarget(1.0, 0.2, 0.02, 1.0)]), GPR)
+    z = np.arange(0.0, 0.8, 0.0025)
+    xx, zz = np.meshgrid(prep.x_m, z)
+    image = 1e-4 + np.exp(-((xx - 1.2) ** 2 + (zz - 0.5) ** 2) / (2 * 0.01**2))  # a compact focus, peak 1
+    image[0, :] = 1000.0  # the direct wave's residual at the surface, excluded as a target
+    spots = find_spots(prep, image.astype(np.float32), z, V)
+    assert any(abs(s.x_m - 1.2) < 0.01 and abs(s.top_m - 0.5) < 0.01 for s in spots)
+
+
 def test_velocity_voters_leave_out_echoes() -> None:
     from gprbot.gpr.chain.velocity import _echo_of
 

@@ -34,6 +34,33 @@ def test_the_likeliest_pipe_stays_when_every_pipe_is_rejected() -> None:
     assert kept == [1] and points.tolist() == [False, False, True, True]
 
 
+def test_a_pipe_scoring_under_the_models_pipe_threshold_is_dropped_though_most_of_it_is_accepted() -> None:
+    owner = np.array([0, 0, 1, 1])
+    beyond = np.zeros(4)
+    probability = np.array([0.95, 0.9, 0.8, 0.7])  # pipe 1 scores 0.75: accepted by points, false by the model
+    assert accepted(probability, owner, beyond, 2)[1] == [0, 1]
+    points, kept = accepted(probability, owner, beyond, 2, pipe_threshold=0.8)
+    assert kept == [0] and points.tolist() == [True, True, False, False]
+
+
+def test_the_pipe_threshold_is_chosen_for_the_most_false_pipes_net_of_the_true_ones_lost() -> None:
+    from training.refine_pipe_threshold import LOST_TRUE_COST, choose
+
+    false = np.array([0.70, 0.76, 0.78, 0.93])
+    true = np.array([0.77, 0.90, 0.95, 0.96])
+    t, dropped_false, dropped_true = choose(false, true)
+    # 0.765 drops two false and no true pipe; 0.785 would drop a third false pipe for a true one (cost 2)
+    assert LOST_TRUE_COST == 2.0 and (dropped_false, dropped_true) == (2, 0) and 0.76 < t <= 0.77
+
+
+@pytest.mark.skipif(not MODEL.exists(), reason="models/fit_refiner.onnx not trained yet")
+def test_the_refiner_reads_its_pipe_threshold_from_its_card() -> None:
+    import json
+
+    card = json.loads(MODEL.with_suffix(".json").read_text())
+    assert FitRefinerModel(MODEL, threads=1).pipe_threshold == card.get("pipe_threshold", 0.5)
+
+
 def test_pipes_beyond_the_one_hot_columns_see_no_pipe_feature() -> None:
     hot = onehot(np.array([0, 2, 14]), n_columns=12)
     assert hot.shape == (3, 12) and hot[0, 0] == 1 and hot[1, 2] == 1 and not hot[2].any()

@@ -249,7 +249,11 @@ def target_lines(result: dict[str, Any]) -> list[str]:
         if rule is not None:
             by_case = ", ".join(f"{c} {ours[c]['median_cd2_e3'] / rule[c]['median_cd2_e3']:.2f}×"
                                 for c in (*HARD_CASES, "all") if c in ours and c in rule)
-            lines.append(f"  - the network's own share (refined / the fit continued by rule, median CD2): {by_case}")
+            r = rule["all"]
+            lines.append(f"  - the network's own share (refined / the fit continued by rule, median CD2): {by_case}; "
+                         f"mean CD2 {a['cd2_e3']:.2f} vs {r['cd2_e3']:.2f}, recall {a['pipe_recall']:.3f} vs "
+                         f"{r['pipe_recall']:.3f}, precision {a['pipe_precision']:.3f} vs {r['pipe_precision']:.3f} "
+                         "(the network drops the fitted pipes it scores under its card's pipe threshold)")
     return [*lines, ""] if len(lines) > 2 else []
 
 

@@ -24,7 +24,7 @@ import importlib
 import inspect
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from gprbot.config import ReconstructionConfig
 from gprbot.infer.gprnet import INPUT_NAME
+from gprbot.infer.onnx_model import card_path_for
 from gprbot.infer.refine import FitRefinerModel, refined_reconstruction
 from gprbot.motion.planner import survey_region
 from gprbot.progress import track
@@ -200,10 +201,12 @@ def migration_report(models_dir: Path) -> dict[str, Any] | None:
 
 
 def cached_rows(
-    onnx_path: Path, sigma: float, data: dict[str, Any], compute: Callable[[], list[dict[str, Any]]]
+    onnx_path: Path, sigma: float, data: dict[str, Any], compute: Callable[[], list[dict[str, Any]]],
+    also: Sequence[Path] = (),
 ) -> list[dict[str, Any]]:
-    """Per-sample rows of one model at one noise level, cached by the code version (with the ONNX file)."""
-    cache = CACHE_DIR / f"eval_rows_{code_version([_ME], [onnx_path])}_{sigma}_{len(data['seed'])}.json"
+    """Per-sample rows of one model at one noise level, cached by the code version (with the ONNX file and the
+    files `also` names: a card whose settings the runtime reads)."""
+    cache = CACHE_DIR / f"eval_rows_{code_version([_ME], [onnx_path, *also])}_{sigma}_{len(data['seed'])}.json"
     if cache.exists():
         return list(json.loads(cache.read_text()))
     rows = compute()
@@ -245,7 +248,8 @@ def _score_fit_rows(report: dict[str, Any], data: dict[str, Any], models_dir: Pa
     """Score the FitRefiner, the geometric fit, the rule and the reference rows into the report."""
     refiner = models_dir / "fit_refiner.onnx"
     if refiner.exists():
-        rows = cached_rows(refiner, 0.0, data, lambda: score(refined_prediction(data, refiner), data))
+        rows = cached_rows(refiner, 0.0, data, lambda: score(refined_prediction(data, refiner), data),
+                           also=[card_path_for(refiner)])  # its pipe threshold
         report["table1"]["fit_refiner"], report["per_sample"]["fit_refiner"] = summarise(rows), rows
     reference = reference_rows(data)
     report["geometric_no_pipe_seeds"] = reference["geometric_no_pipe_seeds"]

@@ -5,8 +5,9 @@
    sampled inside these longer rods.
 3. The network (ONNX) sees the sparse cloud and points of the fitted rods, and says for every candidate
    point whether it lies inside a real pipe, and by how much to move it (the interpreter's radius and
-   depth biases). A pipe whose fitted part it mostly rejects is dropped (a false pipe); along a kept one,
-   the accepted points may reach past where the fit stopped (the pipe goes on).
+   depth biases). A pipe whose fitted part scores below the model's pipe threshold (its card's, chosen on the
+   validation surveys) is dropped as false; along a kept one, the accepted points may reach past where the
+   fit stopped (the pipe goes on).
 4. The dense cloud is cfg.dense_points of the accepted, moved points.
 
 Without a model (completion "extended") every candidate is accepted and none is moved: the fit pushed on
@@ -63,6 +64,9 @@ class FitRefinerModel:
         if names != expected:
             raise ModelError(f"{model_path}: not a FitRefiner (inputs {names}, expected {expected}); "
                              "re-export it with tools/export_onnx.py fit_refiner")
+        # Below this score a fitted pipe is dropped as false: chosen per model on the validation surveys
+        # (training.refine_pipe_threshold); a card without one keeps every pipe most of whose fit it accepts.
+        self.pipe_threshold = float(self.model.card.get("pipe_threshold", ACCEPT))
         self.last_seconds = 0.0
 
     def run(self, sparse: NDArray[np.float32], fit: NDArray[np.float32], fit_pipes: NDArray[np.float32],
@@ -77,13 +81,20 @@ class FitRefinerModel:
         return 1.0 / (1.0 + np.exp(-logits)), np.asarray(outputs[REFINED_NAME], dtype=np.float64)[0]
 
 
-def accepted(probability: NDArray[np.float64], owner: NDArray[np.int64], beyond: NDArray[np.float64],
-             n_pipes: int) -> tuple[NDArray[np.bool_], list[int]]:
-    """The accepted points and the kept pipes (most of the fitted part accepted; at least the likeliest pipe)."""
+def pipe_scores(probability: NDArray[np.float64], owner: NDArray[np.int64], beyond: NDArray[np.float64],
+                n_pipes: int) -> list[float]:
+    """Each fitted pipe's score: the mean probability over the candidates inside its fitted part (0: none)."""
     inside_fit = beyond <= 0.0
-    scores = [float(np.mean(probability[(owner == k) & inside_fit])) if np.any((owner == k) & inside_fit) else 0.0
-              for k in range(n_pipes)]
-    kept = [k for k in range(n_pipes) if scores[k] >= ACCEPT] or [int(np.argmax(scores))]
+    return [float(np.mean(probability[(owner == k) & inside_fit])) if np.any((owner == k) & inside_fit) else 0.0
+            for k in range(n_pipes)]
+
+
+def accepted(probability: NDArray[np.float64], owner: NDArray[np.int64], beyond: NDArray[np.float64],
+             n_pipes: int, pipe_threshold: float = ACCEPT) -> tuple[NDArray[np.bool_], list[int]]:
+    """The accepted points and the kept pipes (score at least pipe_threshold; at least the likeliest pipe)."""
+    inside_fit = beyond <= 0.0
+    scores = pipe_scores(probability, owner, beyond, n_pipes)
+    kept = [k for k in range(n_pipes) if scores[k] >= pipe_threshold] or [int(np.argmax(scores))]
     points = (probability >= ACCEPT) & np.isin(owner, kept)
     if not points.any():  # the likeliest pipe's fitted part stands, as the fit drew it
         points = np.isin(owner, kept) & inside_fit
@@ -116,7 +127,8 @@ def refined_reconstruction(
         probability, moved = model.run(unit(sparse), unit(candidates.fit), onehot(candidates.fit_pipe),
                                        unit(candidates.query), onehot(candidates.query_pipe),
                                        (candidates.beyond_m / scale).astype(np.float32))
-    points, kept = accepted(probability, candidates.query_pipe, candidates.beyond_m, len(pipes))
+    points, kept = accepted(probability, candidates.query_pipe, candidates.beyond_m, len(pipes),
+                            ACCEPT if model is None else model.pipe_threshold)
     new_index = {old: new for new, old in enumerate(kept)}
     chosen = []
     for k in kept:

@@ -32,7 +32,7 @@ from gprbot.gpr.chain.reflectors import Reflector, fit_each, refit_each_at_veloc
 FloatArray = NDArray[np.float64]
 
 MIN_SPOT_FOCUS = 0.3  # of the 99th percentile of the image within a wavelength of the spot's depth (as `focused`)
-MIN_SPOT_SHARE = 0.02  # of the image's brightest spot: weaker is migration noise
+MIN_SPOT_SHARE = 0.02  # of the image's brightest cell below the direct wave: weaker is migration noise
 COMPACT_RATIO = 0.6  # a wavelength to one side the envelope falls below this share of the spot (a layer doesn't)
 RINGING_WAVELENGTHS = 0.75  # an antenna rings about one and a half periods: that far under a spot is its echo
 ECHO_X_M = 0.03
@@ -63,13 +63,15 @@ def find_spots(prep: PreparedBScan, env: NDArray[np.float32], z_m: FloatArray, v
     dz, wavelength = float(z_m[1] - z_m[0]), prep.wavelength_m(v)
     wz, wx = max(1, round(0.25 * wavelength / dz)), max(1, round(0.25 * wavelength / prep.dx_m))
     peaks = e == ndimage.maximum_filter(e, size=(2 * wz + 1, 2 * wx + 1), mode="nearest")
-    # What migrates within the direct wave's tail is the antenna's own ringing.
-    peaks[z_m < 0.5 * v * 0.75 * prep.period_ns, :] = False
-    peaks[z_m > z_m[-1] - wavelength, :] = False  # the image's lower edge: the window's truncation, not a target
+    # What migrates within the direct wave's tail is the antenna's own ringing; the image's lower edge is the
+    # window's truncation. Neither is a target, nor the yardstick a target's brightness is judged against.
+    eligible = (z_m >= 0.5 * v * 0.75 * prep.period_ns) & (z_m <= z_m[-1] - wavelength)
+    peaks[~eligible, :] = False
+    brightest = float(e[eligible].max(initial=0.0))
     band = max(1, round(wavelength / dz))
     row_level = np.percentile(e, 99.0, axis=1)
     band_level = ndimage.maximum_filter1d(row_level, 2 * band + 1, mode="nearest")
-    peaks &= (e >= MIN_SPOT_FOCUS * band_level[:, None]) & (e >= MIN_SPOT_SHARE * e.max())
+    peaks &= (e >= MIN_SPOT_FOCUS * band_level[:, None]) & (e >= MIN_SPOT_SHARE * brightest)
     side = max(2, round(wavelength / prep.dx_m))
     out = []
     for i, j in zip(*np.nonzero(peaks), strict=True):
@@ -152,6 +154,7 @@ def _seeded_all(prep: PreparedBScan, spots: Sequence[Spot], v: float) -> list[Re
     present = [(k, r) for k, r in zip(index, fitted, strict=True) if r is not None]
     refitted = refit_each_at_velocity(prep, [r for _, r in present], v)
     agree = 0.5 * v * AGREE_PERIODS * prep.period_ns
+
     out: list[Reflector | None] = [None] * len(spots)
     for (k, _), r in zip(present, refitted, strict=True):
         spot = spots[k]
