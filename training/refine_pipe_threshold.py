@@ -9,9 +9,12 @@ on a false pipe (clutter seen from the neighbouring lines, a rebar's echo, a bro
 score lower, but the scores of false and true pipes overlap above 0.5, so "most of it accepted" dropped no
 false pipe at all. Each model gets the threshold that, on the first `--limit` surveys of the *validation*
 split (interpreted as the product does: velocity estimated, the classical path and MigrationNet each),
-drops the most false pipes net of LOST_TRUE_COST per true pipe it would drop (missing a utility costs more
-than a false alarm); ties go to the lowest. The threshold and what it did there go into the model's card,
-which the runtime reads. The test surveys (`training.eval_end_to_end`) are not looked at.
+drops the most false pipes net of LOST_TRUE_COST per other pipe it would drop (missing a utility costs more
+than a false alarm); ties go to the lowest. A false pipe is an extra of the two-way matching that lies along
+no real pipe: a stray piece of a real pipe the tracker broke off is an extra too, but dropping it loses that
+part of the pipe (`gprbot.simulated.evaluation.lies_on_a_pipe`). The threshold and what it did there go
+into the model's card, which the runtime reads. The test surveys (`training.eval_end_to_end`) are not
+looked at.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from gprbot.infer.refine import FIT_POINTS, QUERY_POINTS, SPARSE_POINTS, FitRefi
 from gprbot.reconstruct.completion import fit_pipes
 from gprbot.reconstruct.extension import RodCandidates, rod_candidates, survey_footprint
 from gprbot.reconstruct.register import resample_cloud
-from gprbot.simulated.evaluation import compare_to_truth
+from gprbot.simulated.evaluation import compare_to_truth, lies_on_a_pipe
 from training.code_version import code_version
 from training.e2e_surveys import simulated_survey
 from training.eval_end_to_end import chain_config
@@ -72,7 +75,8 @@ def survey_rows(index: int, data: Any, models: dict[str, FitRefinerModel]) -> li
         _, extras = compare_to_truth(pipes, survey.truth, survey.region)
         scores = {name: scored(model, sparse, candidates, len(pipes)) for name, model in models.items()}
         rows += [{"survey": survey.name, "case": survey.case, "interpretation": method, "pipe": k,
-                  "false": k in extras, "n_slices": p.n_slices, **{f"score:{n}": s[k] for n, s in scores.items()}}
+                  "false": k in extras and not lies_on_a_pipe(p, survey.truth, survey.region),
+                  "extra": k in extras, "n_slices": p.n_slices, **{f"score:{n}": s[k] for n, s in scores.items()}}
                  for k, p in enumerate(pipes)]
     return rows
 

@@ -112,6 +112,13 @@ def _pair(truth: Pipe, found: PipeModel, region: Region) -> _Pair:
     return _Pair(float(np.mean(d)), float(np.mean(np.abs(f[:, 2] - p[:, 2]))), coverage)
 
 
+def lies_on_a_pipe(found: PipeModel, scene: Scene, region: Region) -> bool:
+    """Whether a found pipe lies along one of the scene's pipes at its depth (mean horizontal distance within
+    MATCH_GATE_M, mean depth within COVER_DISTANCE_M): a piece of a real pipe, matched or not, and no false one."""
+    return any(pair.lies_along and pair.depth <= COVER_DISTANCE_M
+               for pair in (_pair(t, found, region) for t in scene.pipes))
+
+
 def compare_to_truth(
     found: Sequence[PipeModel], scene: Scene, region: Region
 ) -> tuple[list[PipeMatch], list[int]]:

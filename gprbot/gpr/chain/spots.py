@@ -39,6 +39,7 @@ ECHO_X_M = 0.03
 CROSSING_WAVELENGTHS = 0.5  # a V of crossing flanks migrates to a smear about this far around the crossing
 MAX_SPOTS_PER_M = 10
 EXPLAINED_M = 0.03  # a spot this near a detection's top (plus its radius in x) is that detection
+EXPLAINED_TRACES = 1.5  # ... or this many trace steps along the line, where that is more
 AGREE_PERIODS = 0.25  # a seeded fit whose top lies within this (as depth) of the spot measures its radius
 MIN_SPOT_COHERENCE = 0.4  # semblance along the seeded fit: geology's clutter focuses to spots too, but
 # its traces don't line up on a diffraction (FDTD dev and the real files: targets 0.42-0.79, clutter 0-0.33)
@@ -189,9 +190,12 @@ def spot_detections(prep: PreparedBScan, spots: Sequence[Spot], detections: Sequ
     """Detections at the spots no detection explains and that are no echo of a stronger target."""
     wavelength = prep.wavelength_m(v)
     known = [(d.x_m, d.fit.top_m, _fitted_radius(d)) for d in detections]
+    # A spot's x and a fit's apex each sit to within about a trace of the truth: on a coarse line (the SU trench,
+    # 4 cm traces) one target's spot and fit lie 5 cm apart, and were reported twice.
+    along = max(EXPLAINED_M, EXPLAINED_TRACES * prep.dx_m)
 
     def open_spot(spot: Spot) -> bool:
-        explained = any(abs(spot.x_m - x) <= EXPLAINED_M + r and abs(spot.top_m - top) <= EXPLAINED_M
+        explained = any(abs(spot.x_m - x) <= along + r and abs(spot.top_m - top) <= EXPLAINED_M
                         for x, top, r in known)
         return not explained and not is_echo_spot(spot, known, wavelength)
 
