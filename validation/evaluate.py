@@ -148,7 +148,10 @@ def report(rows: Sequence[Row], groups: Sequence[str], methods: Sequence[str]) -
              "echo; drawn from the dev half with the fold models, where velocity given false pipes went 0.42 -> 0.18 "
              "a scene, no pipe lost) and the chain's rebars, its time the chain's and the network's together; the "
              "test half was read once for it: false pipes 0.33 -> 0.21 a scene, within 3 cm 28 of 36 unchanged, "
-             "velocity given.", ""]
+             "velocity given. Later on 2026-12-06 two fixes to the chain's migrated spots, both drawn from the SU "
+             "trench line (a focus judged against the brightest cell below the direct wave, not the surface row; a "
+             "spot within 1.5 trace steps of a detection is that detection), were run on it once: no figure of "
+             "either half changed.", ""]
     keys = list(summary([]).keys())
     for group in groups:
         if group == "real":
