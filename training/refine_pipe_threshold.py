@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from gprbot.config import load_config
+from gprbot.config import Config, load_config
 from gprbot.errors import GprbotError
 from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.gprnet import normalisation
@@ -49,26 +49,31 @@ GRID = np.round(np.arange(0.5, 0.995, 0.005), 3)
 _RNG_TAG = 0x505448
 
 
-def survey_rows(index: int, data: Any, models: dict[str, FitRefinerModel]) -> list[dict[str, Any]]:
+def survey_rows(index: int, data: Any, base: Config, models: dict[str, FitRefinerModel]) -> list[dict[str, Any]]:
     """Every fitted pipe of one validation survey, per interpreter: each model's score and whether it is false."""
-    base = load_config()
     survey = simulated_survey(index, data, base.gpr)
+    # Preprocessing and the survey's velocity do not depend on the interpreter: once per survey, as
+    # training.eval_end_to_end does.
+    cfg = chain_config(base, survey.gpr, INTERPRETERS[0], "refined")
+    try:
+        processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
+        velocity, _, hints, _ = survey_velocity(processed, cfg)
+    except GprbotError:
+        return []  # a refused survey has no pipe to keep or drop
+    footprint = survey_footprint({line: b.positions for line, b in processed.items()})
     rows = []
     for method in INTERPRETERS:
         cfg = chain_config(base, survey.gpr, method, "refined")
         try:
-            processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
-            velocity, _, hints, _ = survey_velocity(processed, cfg)
             slices = [interpret_line(line, b, cfg, velocity, hints).slice for line, b in processed.items()]
         except GprbotError:
-            continue  # a refused survey has no pipe to keep or drop
+            continue
         points = np.concatenate([s.points for s in slices])
         pipes = fit_pipes(slices, cfg.reconstruction)
         if not pipes or not len(points):
             continue
         rng = np.random.default_rng([survey.seed, _RNG_TAG])
         sparse = resample_cloud(points, SPARSE_POINTS, rng)
-        footprint = survey_footprint({line: b.positions for line, b in processed.items()})
         candidates = rod_candidates(pipes, footprint, FIT_POINTS, QUERY_POINTS, rng, slices)
         if candidates is None:
             continue
@@ -110,6 +115,7 @@ def main() -> None:
     args = parser.parse_args()
     models = {str(m): FitRefinerModel(m, threads=1) for m in args.models}
     data = load_split("val")
+    base = load_config()
     count = min(args.limit, len(data["seed"]))
     version = code_version(["training.refine_pipe_threshold"], [Path(m) for m in args.models])
     cache = CACHE_DIR / f"refine_pipe_scores_{version}_{count}.json"
@@ -118,7 +124,7 @@ def main() -> None:
     else:
         rows = []
         for i in range(count):
-            rows += survey_rows(i, data, models)
+            rows += survey_rows(i, data, base, models)
             print(f"survey {i + 1}/{count}: {len(rows)} fitted pipes so far", flush=True)
         CACHE_DIR.mkdir(parents=True, exist_ok=True)
         cache.write_text(json.dumps(rows))

@@ -155,7 +155,6 @@ def _seeded_all(prep: PreparedBScan, spots: Sequence[Spot], v: float) -> list[Re
     present = [(k, r) for k, r in zip(index, fitted, strict=True) if r is not None]
     refitted = refit_each_at_velocity(prep, [r for _, r in present], v)
     agree = 0.5 * v * AGREE_PERIODS * prep.period_ns
-
     out: list[Reflector | None] = [None] * len(spots)
     for (k, _), r in zip(present, refitted, strict=True):
         spot = spots[k]
