@@ -24,6 +24,9 @@ N_RANDOM = 18
 # halves stay as they were: 21 + 21 scenes told too little (one pipe is 4-5 % of a half's score).
 SECOND_SEED, SECOND_SPLIT_SEED = 7311, 20261205
 N_SECOND = 24
+# A third batch (2026-12-06): long lines over a dense mesh with utilities below it — the typical slab, where
+# the bars' hyperbolas and their ringing outnumber and outshine a deeper pipe's. Split on its own seed.
+MESH_SPLIT_SEED = 20261206
 BUDGET_S = 180.0  # estimated seconds on one core per random scene
 
 
@@ -160,6 +163,21 @@ def hard_cases() -> list[Scene]:
     ]
 
 
+def mesh_cases() -> list[Scene]:
+    """Lines of 1-1.8 m over one or two mats of bars 10-20 cm apart, with one or two pipes below the top mat."""
+    S = Scene
+    return [
+        S("mesh_pipe_600", "mesh_pipe", 600, Concrete(8.0, 0.005), 0.02, 90, 0.02, 0.06,
+          (Pipe(0.93, 0.36, 0.04),), _row(0.09, 0.20, 9, 0.058, 0.008)),
+        S("mesh_pipe_900", "mesh_pipe", 900, Concrete(6.5, 0.01), 0.015, 100, 0.02, 0.05,
+          (_pvc(0.75, 0.36, 0.05, False),), _row(0.0, 0.15, 10, 0.046, 0.006) + _row(0.075, 0.15, 9, 0.206, 0.006)),
+        S("mesh_pipe_1200", "mesh_pipe", 1200, Concrete(9.0, 0.008), 0.015, 90, 0.02, 0.05,
+          (Pipe(0.45, 0.25, 0.025), _pvc(0.95, 0.30, 0.035, False)), _row(0.03, 0.12, 11, 0.04, 0.005)),
+        S("mesh_pipe_1600", "mesh_pipe", 1600, Concrete(5.5, 0.003), 0.01, 100, 0.01, 0.04,
+          (_pvc(0.55, 0.22, 0.03, False, 0.005),), _row(0.02, 0.10, 10, 0.035, 0.005)),
+    ]
+
+
 def _stones(seed: int, length: float, max_depth: float, count: int) -> tuple[Stone, ...]:
     """Aggregate grains (radius 4–12 mm, eps 4–7) scattered through the slab."""
     rng = np.random.default_rng(seed)
@@ -259,6 +277,7 @@ def split(scenes: list[Scene], seed: int = SPLIT_SEED) -> list[Scene]:
 
 def all_scenes() -> list[Scene]:
     """Every scene of the yardstick, in a stable order, with its half: the first batch (hand-written and
-    random), then the second random batch, each split on its own."""
+    random), then the second random batch, then the mesh batch, each split on its own."""
     second = random_scenes(N_SECOND, SECOND_SEED, first_index=N_RANDOM)
-    return split(hard_cases() + random_scenes()) + split(second, SECOND_SPLIT_SEED)
+    return (split(hard_cases() + random_scenes()) + split(second, SECOND_SPLIT_SEED)
+            + split(mesh_cases(), MESH_SPLIT_SEED))
