@@ -151,7 +151,9 @@ def report(rows: Sequence[Row], groups: Sequence[str], methods: Sequence[str]) -
              "velocity given. Later on 2026-12-06 two fixes to the chain's migrated spots, both drawn from the SU "
              "trench line (a focus judged against the brightest cell below the direct wave, not the surface row; a "
              "spot within 1.5 trace steps of a detection is that detection), were run on it once: no figure of "
-             "either half changed.", ""]
+             "either half changed. Later still on 2026-12-06 the mesh batch (mesh_pipe_*: four lines of 1-1.8 m over "
+             "dense rebar mats, two a half) joined; its test scenes were first run for this report, and MigrationNet, "
+             "fine-tuned before they existed, is out of sample on its two dev scenes as well.", ""]
     keys = list(summary([]).keys())
     for group in groups:
         if group == "real":
