@@ -64,9 +64,14 @@ def fdtd_half(half: str) -> list[Case]:
     return sorted((c for c in fdtd_cases() if c.group == f"fdtd-{half}"), key=lambda c: c.name)
 
 
+# The mesh batch (validation.fdtd.scenes.mesh_cases, 2026-12-06) came after the recipe was chosen and the model
+# shipped: it is a yardstick only, and the shipped MigrationNet is out of sample on its dev scenes too.
+NOT_TRAINED_ON = ("mesh_pipe_",)
+
+
 def dev_folds() -> tuple[list[Case], list[Case]]:
-    """The FDTD dev half in two folds: alternate scenes in name order."""
-    dev = fdtd_half("dev")
+    """The FDTD dev scenes it trains on in two folds: alternate scenes in name order."""
+    dev = [c for c in fdtd_half("dev") if not c.name.startswith(NOT_TRAINED_ON)]
     return dev[0::2], dev[1::2]
 
 

@@ -1,5 +1,6 @@
 """The interpretation chain, one B-scan end to end: prepare → candidates → reflectors → velocity → classify →
-spots of the migrated image → section.
+spots of the migrated image → section; a line over a rebar mat is searched a second time below the mat, with
+the mat's periodic response taken out (`mat`).
 
 Each stage is a pure function with a typed result handed to the next (see the stage modules); this
 module only strings them together and draws the cross-section. Nothing here depends on how the data
@@ -21,6 +22,7 @@ from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.calibrate import KnownTop, calibrate
 from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
+from gprbot.gpr.chain.mat import Mat, find_mat, without_mat
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.sizing import sized
@@ -35,6 +37,7 @@ MIN_FOCUS = 0.3  # FDTD dev half and the real SS Mini line: true targets 0.6-3.4
 FOCUS_WINDOW_M = 0.02
 MASK_DZ_M = 0.0025  # the section's depth step (as the classical interpreter's): registration samples the mask
 MIN_SINE = 0.3  # crossings steeper than ~17 degrees are not told apart from a pipe along the line
+SAME_TARGET_M = 0.03  # a target found below a mat this near one found on the line itself is that one
 
 
 @dataclass(frozen=True)
@@ -152,6 +155,63 @@ def _section(prep: PreparedBScan, detections: tuple[ClassifiedDetection, ...], v
     return CrossSection(mask, prep.x_m, z, image, tuple(pipes), v, estimated, rebars=tuple(bars))
 
 
+def _detections(prep: PreparedBScan, reflectors: tuple[Reflector, ...], v: float,
+                hint_at: Callable[[float], SurveyHint] | None, depth_m: float,
+                ) -> tuple[tuple[ClassifiedDetection, ...], NDArray[np.float32], FloatArray]:
+    """Classified hyperbolas and migrated spots of one prepared line at velocity v, and its migrated image."""
+    # One line's own curve cannot tell an oblique crossing from a faster host (FDTD dev and the negative
+    # geology line: taking fast curves as oblique added false pipes), so only the survey's hints say so.
+    sines = [max(MIN_SINE, hint_at(r.free_fit.x0_m).sin_cross) if hint_at else 1.0 for r in reflectors]
+    reflectors = refit_at_velocity(prep, reflectors, [v / s for s in sines])
+    detections = tuple(across(d, v) for d in classify(prep, reflectors, v))
+    image, z = migrated(prep, v, depth_m)
+    detections = focused(detections, image, prep.x_m, z, prep.wavelength_m(v))
+    spots = find_spots(prep, envelope(image), z, v)
+    extra = spot_detections(prep, spots, detections, v)
+    return relabel_rows(without_echoes_of(detections, extra, prep.wavelength_m(v)) + extra), image, z
+
+
+def _same_target(d: ClassifiedDetection, found: Sequence[ClassifiedDetection]) -> bool:
+    """Whether a detection's top lies within SAME_TARGET_M of one already found (x and depth of the top)."""
+    return any(abs(d.x_m - f.x_m) <= SAME_TARGET_M and abs(d.fit.top_m - f.fit.top_m) <= SAME_TARGET_M for f in found)
+
+
+@dataclass(frozen=True)
+class BelowMat:
+    """A line's rebar mat, the line with the mat's response taken out, and the hyperbolas there below the mat."""
+
+    mat: Mat
+    prep: PreparedBScan
+    reflectors: tuple[Reflector, ...]
+    from_ns: float  # what lies below the mat: apex times from here on (ns after transmit)
+
+
+def below_mat(prep: PreparedBScan) -> BelowMat | None:
+    """The line searched under its rebar mat, if it has one (`chain.mat`)."""
+    mat = find_mat(prep)
+    if mat is None:
+        return None
+    below = without_mat(prep, mat)
+    # Only what lies a period below the mat's top is looked for there: at its depth the bars' residue (bars tied
+    # by hand are not exactly periodic) would vote and be found again (SS Mini File____002).
+    from_ns = mat.top_ns + prep.period_ns
+    reflectors = tuple(r for r in fit_reflectors(below, apex_candidates(below)) if r.candidate.t_ns >= from_ns)
+    return BelowMat(mat, below, reflectors, from_ns)
+
+
+def hidden_by_mat(below: BelowMat, v: float, hint_at: Callable[[float], SurveyHint] | None, depth_m: float,
+                  found: Sequence[ClassifiedDetection]) -> tuple[ClassifiedDetection, ...]:
+    """What the mat hid: targets of the line searched with the mat taken out, below it, not found already."""
+    hidden, _, _ = _detections(below.prep, below.reflectors, v, hint_at, depth_m)
+    deeper = 0.5 * v * below.from_ns  # the same limit as a depth (the air gap and offset only make it shallower)
+    # Within a period of either end the mat's response is estimated from one side only, and the mat's edge is not
+    # periodic: what is left there is the mat's, not a target's (mesh_pipe_1600, velocity estimated).
+    x = below.prep.x_m
+    lo, hi = x[0] + below.mat.spacing_m, x[-1] - below.mat.spacing_m
+    # Each pass has told its rows from its pipes; across the two, pipes half a metre apart would make a "row".
+    return tuple(d for d in hidden if d.fit.top_m >= deeper and lo <= d.x_m <= hi and not _same_target(d, found))
+
+
 def interpret(
     bscan: BScan, gpr: GprConfig, velocity_m_per_ns: float | None = None, *,
     fallback_velocity_m_per_ns: float | None = None, depth_max_m: float | None = None,
@@ -188,12 +248,18 @@ def interpret(
                            f"{1000 * calibration.t0_shift_ns:+.0f} ps by the known tops")
             candidates = apex_candidates(prep)
             reflectors = fit_reflectors(prep, candidates)
+    below = below_mat(prep)
+    if below is not None:
+        notes.append(f"a rebar mat every {100 * below.mat.spacing_m:.1f} cm: the line was also searched with its "
+                     "periodic response taken out")
     if velocity_m_per_ns is not None:
         v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
     elif calibrated is not None:
         v, sigma, source, how = calibrated.v, calibrated.sigma, "calibrated", calibrated.method
     else:
-        est: VelocityEstimate | None = estimate_velocity(prep, reflectors)
+        # Under a mat the bars' broken curves vote badly; the targets below it, clean of the mat, vote first.
+        est: VelocityEstimate | None = ((estimate_velocity(below.prep, below.reflectors) if below is not None else None)
+                                        or estimate_velocity(prep, reflectors))
         if est is not None:
             v, sigma, source, how = est.v, est.sigma, "estimated", est.method
             if est.shallow:
@@ -207,17 +273,10 @@ def interpret(
                    + (f"used {v:.4f} m/ns from the file's permittivity" if fallback_velocity_m_per_ns
                       else f"depths assume {v:.2f} m/ns (typical concrete): pass --velocity"))
             notes.append(f"velocity not estimated: {how}")
-    # One line's own curve cannot tell an oblique crossing from a faster host (FDTD dev and the negative
-    # geology line: taking fast curves as oblique added false pipes), so only the survey's hints say so.
-    sines = [max(MIN_SINE, hint_at(r.free_fit.x0_m).sin_cross) if hint_at else 1.0 for r in reflectors]
-    reflectors = refit_at_velocity(prep, reflectors, [v / s for s in sines])
-    detections = tuple(across(d, v) for d in classify(prep, reflectors, v))
-    depth = depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns)
-    image, z = migrated(prep, v, max(depth, 0.05))
-    detections = focused(detections, image, prep.x_m, z, prep.wavelength_m(v))
-    spots = find_spots(prep, envelope(image), z, v)
-    extra = spot_detections(prep, spots, detections, v)
-    detections = relabel_rows(without_echoes_of(detections, extra, prep.wavelength_m(v)) + extra)
+    depth = max(depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns), 0.05)
+    detections, image, z = _detections(prep, reflectors, v, hint_at, depth)
+    if below is not None:
+        detections += hidden_by_mat(below, v, hint_at, depth, detections)
     if sizer is not None and any(d.kind == "pipe" and d.radius_source == "none" for d in detections):
         detections = sized(detections, sizer(v))
     if hint_at is not None:
