@@ -8,9 +8,10 @@ is the mat; a pipe does not repeat. The period is read from the lateral autocorr
 near half of it, a peak at it); the mat's response at a trace is the median of the traces whole periods away
 (the trace itself left out, so a pipe's apex does not enter its own estimate); the chain searches the line with
 that response taken out as well as the line itself (`run.interpret`). The bars are not read off the response:
-under a dense mat at a few centimetres' cover the direct wave's tail changes with the bars below it and the
-background removal mirrors their tops between them, so the earliest, brightest events of a period lie half a
-spacing off the bars (FDTD mesh batch); the bars the line's own hyperbolas show are reported as before.
+halfway between two bars a few centimetres down both neighbours' flanks arrive together, brighter than either
+top (a dipole radiates most towards the critical angle), so a period's brightest event lies half a spacing off
+the bars and its earliest arrivals sit at the bars and halfway alike (FDTD mesh batch); the bars the line's own
+hyperbolas show are reported as before.
 """
 
 from __future__ import annotations
