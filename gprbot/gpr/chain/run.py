@@ -24,7 +24,7 @@ from gprbot.gpr.chain.candidates import ApexCandidate, apex_candidates
 from gprbot.gpr.chain.classify import ClassifiedDetection, classify, relabel_rows
 from gprbot.gpr.chain.mat import Mat, find_mat, without_mat
 from gprbot.gpr.chain.prepare import PreparedBScan, prepare
-from gprbot.gpr.chain.reflectors import Reflector, fit_reflectors, refit_at_velocity
+from gprbot.gpr.chain.reflectors import SAME_TARGET_M, Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.sizing import sized
 from gprbot.gpr.chain.spots import find_spots, spot_detections, without_echoes_of
 from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
@@ -37,7 +37,6 @@ MIN_FOCUS = 0.3  # FDTD dev half and the real SS Mini line: true targets 0.6-3.4
 FOCUS_WINDOW_M = 0.02
 MASK_DZ_M = 0.0025  # the section's depth step (as the classical interpreter's): registration samples the mask
 MIN_SINE = 0.3  # crossings steeper than ~17 degrees are not told apart from a pipe along the line
-SAME_TARGET_M = 0.03  # a target found below a mat this near one found on the line itself is that one
 
 
 @dataclass(frozen=True)
@@ -208,7 +207,6 @@ def hidden_by_mat(below: BelowMat, v: float, hint_at: Callable[[float], SurveyHi
     # periodic: what is left there is the mat's, not a target's (mesh_pipe_1600, velocity estimated).
     x = below.prep.x_m
     lo, hi = x[0] + below.mat.spacing_m, x[-1] - below.mat.spacing_m
-    # Each pass has told its rows from its pipes; across the two, pipes half a metre apart would make a "row".
     return tuple(d for d in hidden if d.fit.top_m >= deeper and lo <= d.x_m <= hi and not _same_target(d, found))
 
 
@@ -276,6 +274,7 @@ def interpret(
     depth = max(depth_max_m or 0.5 * v * (prep.data.shape[1] * prep.dt_ns - prep.t0_ns), 0.05)
     detections, image, z = _detections(prep, reflectors, v, hint_at, depth)
     if below is not None:
+        # Each pass has told its rows from its pipes; across the two, pipes half a metre apart would make a "row".
         detections += hidden_by_mat(below, v, hint_at, depth, detections)
     if sizer is not None and any(d.kind == "pipe" and d.radius_source == "none" for d in detections):
         detections = sized(detections, sizer(v))
