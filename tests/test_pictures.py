@@ -14,7 +14,7 @@ from gprbot import progress
 from gprbot.cli import main
 from gprbot.config import GprConfig
 from gprbot.gpr.bscan import BScan, SyntheticTarget, synthetic_bscan
-from gprbot.gpr.render import bscan_image, processing_note, vertical_exaggeration, write_bscan_png
+from gprbot.gpr.render import bscan_image, display_clip, processing_note, vertical_exaggeration, write_bscan_png
 
 GPR = GprConfig()
 
@@ -49,6 +49,14 @@ def test_a_sideways_line_is_drawn_along_site_y() -> None:
                                  np.zeros(len(line.positions))])
     axis, _, _ = bscan_image(replace(line, positions=positions))
     assert axis.name == "y" and axis.sign == 1 and float(axis.of(0.3)) == pytest.approx(0.5)
+
+
+def test_section_grey_scale_is_not_set_by_the_surface_row_or_the_migration_edge() -> None:
+    picture = np.full((200, 300), 0.01)
+    picture[90:105, 130:170] = 1.0  # a target's focus (1 % of the cells)
+    picture[:3] = 50.0  # the direct wave's residue
+    picture[-4:] = 80.0  # migration's edge
+    assert display_clip(picture) == pytest.approx(1.0)
 
 
 def test_vertical_exaggeration_is_a_stated_round_factor() -> None:

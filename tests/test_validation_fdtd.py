@@ -21,7 +21,7 @@ from validation.fdtd.gprmax_input import (
     layout,
 )
 from validation.fdtd.run import queue
-from validation.fdtd.scenes import C_M_PER_NS, Concrete, Pipe, Rebar, Scene, all_scenes
+from validation.fdtd.scenes import C_M_PER_NS, N_TRAIN, Concrete, Pipe, Rebar, Scene, all_scenes, training_scenes
 
 SCENES = {s.name: s for s in all_scenes()}
 COMMITTED = sorted(DATA.glob("*.json"))
@@ -75,8 +75,9 @@ def test_split_is_deterministic_and_balanced() -> None:
     assert len(SCENES) >= 40
     halves = Counter(s.half for s in again)
     assert abs(halves["dev"] - halves["test"]) <= 1
-    for kind in {s.kind for s in again}:
-        assert {s.half for s in again if s.kind == kind} == {"dev", "test"}, kind
+    split = [s for s in again if s.half != "train"]
+    for kind in {s.kind for s in split}:
+        assert {s.half for s in split if s.kind == kind} == {"dev", "test"}, kind
     for half in ("dev", "test"):
         freqs = [s.frequency_mhz for s in again if s.half == half]
         assert min(freqs) <= 500 and max(freqs) >= 2200
@@ -86,6 +87,17 @@ def test_queue_interleaves_halves() -> None:
     order = [s.half for s in queue(all_scenes())]
     assert order[:10] == ["dev", "test"] * 5
     assert len(order) == len(SCENES)
+    assert order[-N_TRAIN:] == ["train"] * N_TRAIN  # the training batch only after both halves
+
+
+def test_the_training_batch_is_its_own_draw() -> None:
+    train = training_scenes()
+    assert len(train) == N_TRAIN and {s.half for s in train} == {"train"}
+    assert all(s.name.startswith("train_") for s in train)
+    held = [s for s in all_scenes() if s.half != "train"]
+    # no scene of either half drawn again: different names, frequencies and targets
+    assert not {s.name for s in train} & {s.name for s in held}
+    assert not {(s.frequency_mhz, s.pipes) for s in train} & {(s.frequency_mhz, s.pipes) for s in held}
 
 
 def test_decimation_keeps_forty_samples_per_period() -> None:

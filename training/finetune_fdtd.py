@@ -1,7 +1,9 @@
 """Fine-tune MigrationNet on the FDTD dev half's B-scans (issue 12 item 6), mixed with simulated tiles.
 
     python -m training.finetune_fdtd --fold 0 --name ft_fold0     # train on dev fold 1, score fold 0 per epoch
-    python -m training.finetune_fdtd --fold all --name migrationnet_fdtd   # the shipped run: the whole dev half
+    python -m training.finetune_fdtd --fold all --name migrationnet_fdtd   # the whole dev half
+    python -m training.finetune_fdtd --fold none --with-train --name ft_train  # the training batch, scored on dev
+    python -m training.finetune_fdtd --fold all --with-train --name migrationnet_fdtd  # the shipped run
     python -m training.finetune_fdtd --report-test A.onnx B.onnx  # the FDTD test half, report only
     python -m training.finetune_fdtd --score-folds ft_fold0_e4.pt ft_fold1_e4.pt  # the dev half out of fold
 
@@ -14,17 +16,19 @@ section shows them (same two-way time), rebars background as in the simulated ti
 half FDTD tiles, half simulated training tiles (training.migration_data's cache), so the simulator's
 variety stays in.
 
-The run starts from the base ONNX model (training.onnx_weights), batch norms frozen, AdamW with a
-one-cycle schedule (warm-up, then annealed to zero) peaking at --lr over --epochs × STEPS_PER_EPOCH
-steps; a checkpoint per epoch in the shared format (tools/export_onnx.py exports it) keeps the base
-card's threshold and min_peak. Each epoch is also scored on the simulator's validation split, since
-a fine-tune may forget the simulated lines the survey tables are made of. The dev half is split into
-two folds (alternate scenes in name order): with --fold k the run trains on the other fold and every
-epoch is scored on fold k (velocity given, and estimated by the chain); these chose the recipe (the
-card's "selection"), and the shipped run trains on all of it. Only --report-test reads the FDTD test
-half, to report models already chosen (never to choose one). Scores are validation's `migrationnet`
-method: since 362dd21 that is the product's, its pipes confirmed against the chain's (gprbot.infer.confirm)
-with the chain's rebars; the card's selection figures were measured before, on the network's pipes alone.
+The run starts from the base ONNX model (training.onnx_weights), batch norms frozen, AdamW with a one-cycle
+schedule (warm-up, then annealed to zero) peaking at --lr over --epochs × STEPS_PER_EPOCH steps; a checkpoint
+per epoch in the shared format (tools/export_onnx.py exports it) keeps the base card's threshold and min_peak.
+Each epoch is also scored on the simulator's validation split, since a fine-tune may forget the simulated
+lines the survey tables are made of. The dev half is split into two folds (alternate scenes in name order):
+with --fold k the run trains on the other fold and every epoch is scored on fold k (velocity given, and
+estimated by the chain); these chose the recipe (the card's "selection"), and the shipped run trains on all of
+it. Since the FDTD training batch exists (validation.fdtd.scenes.training_scenes, 40 random scenes in neither
+half) --with-train adds it, and with --fold none the run trains on that batch alone and scores every epoch on
+the whole dev half. Only --report-test reads the FDTD test half, to report models already chosen (never to
+choose one). Scores are validation's `migrationnet` method: since 362dd21 that is the product's, its pipes
+confirmed against the chain's (gprbot.infer.confirm) with the chain's rebars; the card's selection figures
+were measured before, on the network's pipes alone.
 """
 
 from __future__ import annotations
@@ -60,13 +64,18 @@ _REPORT_KEYS = ("pipes ≤3 cm", "pipes ≤1 cm", "radius ≤30 %", "false pipes
 
 
 def fdtd_half(half: str) -> list[Case]:
-    """The FDTD scenes of one half ("dev" or "test"), in name order."""
+    """The FDTD scenes of one half ("dev", "test" or "train"), in name order."""
     return sorted((c for c in fdtd_cases() if c.group == f"fdtd-{half}"), key=lambda c: c.name)
 
 
 # The mesh batch (validation.fdtd.scenes.mesh_cases, 2026-12-06) came after the recipe was chosen and the model
 # shipped: it is a yardstick only, and the shipped MigrationNet is out of sample on its dev scenes too.
 NOT_TRAINED_ON = ("mesh_pipe_",)
+
+
+def training_batch() -> list[Case]:
+    """The FDTD training batch (the "train" half: random scenes that neither the dev nor the test half holds)."""
+    return fdtd_half("train")
 
 
 def dev_folds() -> tuple[list[Case], list[Case]]:
@@ -144,7 +153,7 @@ def save_checkpoint(path: Path, model: torch.nn.Module, epoch: int, args: argpar
     """A checkpoint in the shared format, the base card's threshold and min_peak kept."""
     card = _card(args.init)
     sim = "train split" if args.sim_limit is None else f"train split, first {args.sim_limit} scenes"
-    data = (f"fine-tune of {args.init.name} (sha256 {card['sha256'][:12]}) on FDTD dev scenes "
+    data = (f"fine-tune of {args.init.name} (sha256 {card['sha256'][:12]}) on FDTD scenes "
             f"{', '.join(trained_on)} at velocity × {tuple(args.velocity_scales)}, {1 - args.fdtd_share:.0%} of each "
             f"batch simulated training tiles (training.migration_data cache, {sim})")
     torch.save({"model": model.state_dict(), "model_config": {"width": 8}, "epoch": epoch, "seed": args.seed,
@@ -158,8 +167,14 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     torch.manual_seed(args.seed)
     gen = torch.Generator().manual_seed(args.seed)
     folds = dev_folds()
-    train_cases = folds[0] + folds[1] if args.fold == "all" else folds[1 - int(args.fold)]
-    held_out = [] if args.fold == "all" else folds[int(args.fold)]
+    if args.fold in ("all", "none"):
+        train_cases, held_out = (folds[0] + folds[1], []) if args.fold == "all" else ([], folds[0] + folds[1])
+    else:
+        train_cases, held_out = folds[1 - int(args.fold)], folds[int(args.fold)]
+    if args.with_train:
+        train_cases = train_cases + training_batch()
+    if not train_cases:
+        raise SystemExit("--fold none trains on nothing without --with-train")
     x_fdtd, y_fdtd = fdtd_tiles(train_cases, tuple(args.velocity_scales))
     x_sim, y_sim = load_split(build_split("train", limit=args.sim_limit))
     x_val, y_val = load_split(build_split("val", limit=args.sim_limit))  # the simulator's own validation split
@@ -238,8 +253,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="only report these ONNX models on the FDTD test half (velocity given)")
     parser.add_argument("--score-folds", type=Path, nargs=2, default=None, metavar=("FOLD0", "FOLD1"),
                         help="only score the dev half out of fold: fold 0 by FOLD0 (trained with --fold 0), 1 by FOLD1")
-    parser.add_argument("--fold", choices=("0", "1", "all"), default="all",
-                        help="the dev fold held out and scored (0 or 1), or all: train on the whole dev half")
+    parser.add_argument("--fold", choices=("0", "1", "all", "none"), default="all",
+                        help="the dev fold held out and scored (0 or 1); all: train on the whole dev half; none: train "
+                             "on no dev scene and score the whole dev half")
+    parser.add_argument("--with-train", action="store_true",
+                        help="train on the FDTD training batch too (validation.fdtd.scenes.training_scenes)")
     parser.add_argument("--init", type=Path, default=BASE, help="the ONNX model to start from (its card beside it)")
     parser.add_argument("--epochs", type=int, default=4)
     parser.add_argument("--batch", type=int, default=16)

@@ -154,6 +154,19 @@ def vertical_exaggeration(x_span_m: float, z_span_m: float, max_ratio: float = 3
     return next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= needed * 0.999)
 
 
+def display_clip(picture: NDArray[np.float64]) -> float:
+    """The envelope value the section's grey scale tops out at: the 99.5th percentile of its interior rows.
+
+    The surface row (the direct wave's residue) and the last rows (migration's edge, where a record's gained tail
+    is summed along truncated curves) outshine every target on a long line: a real 26 m trench line drew all
+    black under them.
+    """
+    rows = picture.shape[0]
+    edge = max(1, rows // 20)
+    interior = picture[edge:rows - edge] if rows > 2 * edge + 1 else picture
+    return float(np.percentile(interior, 99.5)) or 1.0
+
+
 def write_cross_section_png(
     path: str | Path, section: CrossSection, truth_mask: NDArray[np.bool_] | None = None,
     bscan: BScan | None = None, velocity_note: str | None = None, title: str = "Cross-section",
@@ -167,7 +180,7 @@ def write_cross_section_png(
     x = axis.of(section.x_m)
     z = np.asarray(section.z_m, dtype=np.float64)
     picture = np.asarray(envelope(section.image), dtype=np.float64)
-    clip = float(np.percentile(picture, 99.5)) or 1.0
+    clip = display_clip(picture)
     left, right = (0, -1) if axis.sign > 0 else (-1, 0)
     extent = (float(x[left]), float(x[right]), float(z[-1]), float(z[0]))
     exaggeration = vertical_exaggeration(abs(extent[1] - extent[0]), extent[2] - extent[3])

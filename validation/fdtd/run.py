@@ -29,13 +29,14 @@ POLL_S = 20.0
 
 
 def queue(scenes: list[Scene]) -> list[Scene]:
-    """Cheap scenes first, dev and test interleaved, so a partial batch fills both halves evenly."""
+    """Cheap scenes first, dev and test interleaved, so a partial batch fills both halves evenly; the training
+    batch after them."""
     by_half = {h: sorted((s for s in scenes if s.half == h), key=lambda s: layout(s).estimate_s(s.traces))
-               for h in ("dev", "test")}
+               for h in ("dev", "test", "train")}
     out: list[Scene] = []
-    for i in range(max(len(v) for v in by_half.values())):
+    for i in range(max(len(by_half["dev"]), len(by_half["test"]))):
         out += [by_half[h][i] for h in ("dev", "test") if i < len(by_half[h])]
-    return out
+    return out + by_half["train"]
 
 
 def run_dir(scene: Scene) -> Path:

@@ -3,7 +3,8 @@
 Every target crosses the survey line at 90°, so a cross-section is the whole model. x is measured along
 the line from the first trace's antenna midpoint (trace i lies at x = i * step); depth from the concrete
 surface, downwards. Each scene has a stable name and a `half` ("dev" or "test") assigned once by a seeded,
-stratified split (see `all_scenes`). Independent of gprbot's simulator: nothing here imports gprbot.sim.
+stratified split (see `all_scenes`); a separate batch of random scenes is the "train" half, for fitting models
+only (`training_scenes`). Independent of gprbot's simulator: nothing here imports gprbot.sim.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Literal
 import numpy as np
 
 Fill = Literal["metal", "pvc-air", "pvc-water"]
-Half = Literal["dev", "test"]
+Half = Literal["dev", "test", "train"]
 C_M_PER_NS = 0.299792458
 SPLIT_SEED = 20260612
 RANDOM_SEED = 7310
@@ -27,6 +28,10 @@ N_SECOND = 24
 # A third batch (2026-12-06): long lines over a dense mesh with utilities below it — the typical slab, where
 # the bars' hyperbolas and their ringing outnumber and outshine a deeper pipe's. Split on its own seed.
 MESH_SPLIT_SEED = 20261206
+# A training batch (2026-12-06): random scenes drawn as the two batches above, on a seed of their own, that
+# neither half holds. MigrationNet's FDTD fine-tune had only the 35 dev scenes; with these the dev half can
+# judge a fine-tuned model out of sample, and the test half stays unread.
+TRAIN_SEED, N_TRAIN = 7312, 40
 BUDGET_S = 180.0  # estimated seconds on one core per random scene
 
 
@@ -234,8 +239,8 @@ def random_scene(rng: np.random.Generator, name: str, frequency_mhz: float, dept
 
 
 def random_scenes(count: int = N_RANDOM, seed: int = RANDOM_SEED, budget_s: float = BUDGET_S,
-                  first_index: int = 0) -> list[Scene]:
-    """`count` random scenes (named from random_{first_index}), frequencies log-stratified over 400–2600 MHz
+                  first_index: int = 0, prefix: str = "random") -> list[Scene]:
+    """`count` random scenes (named from {prefix}_{first_index}), frequencies log-stratified over 400–2600 MHz
     (two per band).
 
     A draw whose estimated FDTD cost exceeds `budget_s` is redrawn with a 10 % shallower depth limit: this
@@ -250,7 +255,7 @@ def random_scenes(count: int = N_RANDOM, seed: int = RANDOM_SEED, budget_s: floa
         band = i // 2
         f = float(np.exp(rng.uniform(math.log(bands[band]), math.log(bands[band + 1]))))
         for attempt in range(40):
-            scene = random_scene(rng, f"random_{first_index + i:02d}", f, 0.9**attempt)
+            scene = random_scene(rng, f"{prefix}_{first_index + i:02d}", f, 0.9**attempt)
             if layout(scene).estimate_s(scene.traces) <= budget_s:
                 break
         scenes.append(scene)
@@ -275,9 +280,14 @@ def split(scenes: list[Scene], seed: int = SPLIT_SEED) -> list[Scene]:
     return [out[s.name] for s in scenes]
 
 
+def training_scenes() -> list[Scene]:
+    """The training batch: random scenes of their own seed, all in the "train" half (never dev or test)."""
+    return [replace(s, half="train") for s in random_scenes(N_TRAIN, TRAIN_SEED, prefix="train")]
+
+
 def all_scenes() -> list[Scene]:
-    """Every scene of the yardstick, in a stable order, with its half: the first batch (hand-written and
-    random), then the second random batch, then the mesh batch, each split on its own."""
+    """Every scene, in a stable order, with its half: the first batch (hand-written and random), then the second
+    random batch, then the mesh batch, each split on its own; then the training batch."""
     second = random_scenes(N_SECOND, SECOND_SEED, first_index=N_RANDOM)
     return (split(hard_cases() + random_scenes()) + split(second, SECOND_SPLIT_SEED)
-            + split(mesh_cases(), MESH_SPLIT_SEED))
+            + split(mesh_cases(), MESH_SPLIT_SEED) + training_scenes())
