@@ -105,8 +105,9 @@ class ReconstructionConfig:
 
     # geometric: the axis + radius fit; extended: the fit with every free pipe end pushed on to the survey's
     # edge; refined: the fit continued, pruned and corrected by the FitRefiner (models/fit_refiner.onnx);
-    # gprnet: GPRNet's dense cloud on the fit's pipes
-    completion: Literal["geometric", "extended", "refined", "gprnet"] = "refined"
+    # gprnet: GPRNet's dense cloud on the fit's pipes. extended is the default: end to end it measures as well as
+    # refined (models/eval_end_to_end.md) without a network
+    completion: Literal["geometric", "extended", "refined", "gprnet"] = "extended"
     # The resampling/completion RNG's seed. None: sim.seed, which seeded it before this key existed, so
     # older configs and run logs reconstruct to the same bytes; set it on the robot, which has no sim.
     seed: int | None = None
