@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,12 @@ def test_interpret_reports_the_mesh_as_rebars_and_how_the_velocity_was_found(
     assert all(any(abs(b - x) <= 0.02 for b in bars) for x in BARS_M)
     assert len(result["detections"]) <= 1  # pipes: at most one false one on this line
     assert result["velocity_source"] == "estimated" and "migration focus" in result["velocity_method"]
+    votes = result["velocity_votes"]  # each hyperbola's vote, listed: the estimate is their weighted median
+    counted = re.search(r"focus of (\d+|one) diffraction", result["velocity_method"])
+    assert counted and len(votes) == (1 if counted[1] == "one" else int(counted[1]))
+    assert min(b["v_m_per_ns"] for b in votes) <= result["velocity_m_per_ns"] <= max(b["v_m_per_ns"] for b in votes)
+    assert all(b["weight"] > 0 and 0.0 <= b["x_m"] <= 1.5 for b in votes)
+    assert ("votes (m/ns at x m" in report) == (len(votes) > 1)  # the report lists them when there is a choice
     assert result["time_zero_from"] == "direct-wave envelope peak"
     for key in ("cover_m", "radius_sigma_m", "radius_supported", "fill_hint", "confidence", "found_by"):
         assert key in result["rebars"][0]

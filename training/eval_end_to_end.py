@@ -264,6 +264,10 @@ def markdown(result: dict[str, Any], command: str) -> str:
         feeds = feeds.replace("the FDTD test half (validation/fdtd; the dev half is for tuning)",
                               "the FDTD dev half (validation/fdtd; the half tuned on: report the test half, "
                               "eval_end_to_end_fdtd.md)")
+    if result.get("half") == "train":  # the training batch: a third, untuned draw of the random scenes
+        feeds = feeds.replace("the FDTD test half (validation/fdtd; the dev half is for tuning)",
+                              "the FDTD training batch (validation/fdtd, training_scenes: 40 random scenes in "
+                              "neither half, no shipped model trained on them)")
     cases = result["cases"]
     refused = result["refusals"]
     lines = [
@@ -313,7 +317,8 @@ def main() -> None:
     parser.add_argument("--source", choices=tuple(SOURCES), default="sim")
     parser.add_argument("--limit", type=int, default=60,
                         help="sim: the first N test scenes in seed order (150 in the split; 60 take ~15 min here)")
-    parser.add_argument("--half", choices=("test", "dev"), default="test", help="fdtd: which half (report: test)")
+    parser.add_argument("--half", choices=("test", "dev", "train"), default="test",
+                        help="fdtd: which half (report: test; train: the training batch)")
     parser.add_argument("--out", type=Path, default=None, help="default models/eval_end_to_end[_fdtd]")
     args = parser.parse_args()
     surveys = survey_makers(args.source, load_config().gpr, args.limit, args.half)
@@ -322,7 +327,7 @@ def main() -> None:
         out = args.out or ROOT / "models" / "eval_end_to_end"
     else:
         command = f"python -m training.eval_end_to_end --source fdtd --half {args.half}"
-        name = "eval_end_to_end_fdtd" if args.half == "test" else "eval_end_to_end_fdtd_dev"
+        name = "eval_end_to_end_fdtd" if args.half == "test" else f"eval_end_to_end_fdtd_{args.half}"
         out = args.out or ROOT / "models" / name
     result = evaluate(surveys, args.source)
     if args.source == "fdtd":

@@ -217,6 +217,9 @@ def interpret_file(
             "velocity_source": result.velocity_source,
             "velocity_method": result.velocity_method,
             "velocity_estimated": result.velocity_source == "estimated",
+            # each hyperbola's vote (apex x, its time after time zero, the velocity it focuses at, its weight)
+            "velocity_votes": [{"x_m": round(b.x_m, 4), "t_ns": round(b.t_ns, 3), "v_m_per_ns": round(b.v, 5),
+                                "weight": round(b.weight, 3)} for b in result.velocity_votes],
             "x_origin": "the first trace",
             "depth_origin": "the ground surface (depth of the target's centre, positive down; cover_m to its top)",
             "detections": pipes,
@@ -237,6 +240,9 @@ def interpret_file(
         f"velocity {result.velocity:.4f} m/ns ({v_text}); {len(pipes)} pipes, {len(result.rebars)} rebars "
         f"({seconds:.2f} s):",
     ]
+    if len(result.velocity_votes) > 1:  # whether the hyperbolas agree is the first thing to check on a velocity
+        lines.append("  votes (m/ns at x m, weight): " + ", ".join(
+            f"{b.v:.3f} at {b.x_m:.2f} ({b.weight:.1f})" for b in sorted(result.velocity_votes, key=lambda b: b.v)))
     for d in pipes:
         x, depth, r, conf = (float(str(d[k])) for k in ("x_m", "depth_m", "radius_m", "confidence"))
         radius = f"radius {100 * r:4.1f} cm" + RADIUS_MARK.get(str(d.get("radius_from")), "")

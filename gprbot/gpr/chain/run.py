@@ -27,7 +27,7 @@ from gprbot.gpr.chain.prepare import PreparedBScan, prepare
 from gprbot.gpr.chain.reflectors import SAME_TARGET_M, Reflector, fit_reflectors, refit_at_velocity
 from gprbot.gpr.chain.sizing import sized
 from gprbot.gpr.chain.spots import find_spots, spot_detections, without_echoes_of
-from gprbot.gpr.chain.velocity import VelocityEstimate, estimate_velocity
+from gprbot.gpr.chain.velocity import VelocityEstimate, Vote, estimate_velocity
 from gprbot.gpr.migration import depth_axis, envelope, kirchhoff_migrate
 
 FloatArray = NDArray[np.float64]
@@ -61,6 +61,7 @@ class Interpretation:
     detections: tuple[ClassifiedDetection, ...]
     section: CrossSection
     notes: tuple[str, ...]
+    velocity_votes: tuple[Vote, ...] = ()  # each hyperbola's vote, where the velocity was estimated
 
     @property
     def pipes(self) -> tuple[ClassifiedDetection, ...]:
@@ -250,6 +251,7 @@ def interpret(
     if below is not None:
         notes.append(f"a rebar mat every {100 * below.mat.spacing_m:.1f} cm: the line was also searched with its "
                      "periodic response taken out")
+    votes: tuple[Vote, ...] = ()
     if velocity_m_per_ns is not None:
         v, sigma, source, how = float(velocity_m_per_ns), 0.0, "given", "given by the user"
     elif calibrated is not None:
@@ -259,7 +261,7 @@ def interpret(
         est: VelocityEstimate | None = ((estimate_velocity(below.prep, below.reflectors) if below is not None else None)
                                         or estimate_velocity(prep, reflectors))
         if est is not None:
-            v, sigma, source, how = est.v, est.sigma, "estimated", est.method
+            v, sigma, source, how, votes = est.v, est.sigma, "estimated", est.method, est.votes
             if est.shallow:
                 notes.append("the velocity rests on shallow targets only (within 6 cm of the surface), where the "
                              "antenna's height and Tx-Rx offset govern the curves: check --height/--offset, "
@@ -281,4 +283,5 @@ def interpret(
     if hint_at is not None:
         detections = tuple(holding(d, hint_at(d.x_m).radius_m) for d in detections)
     section = _section(prep, detections, v, image, z, source == "estimated")
-    return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes))
+    return Interpretation(prep, candidates, reflectors, v, sigma, source, how, detections, section, tuple(notes),
+                          votes)

@@ -42,6 +42,16 @@ FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight
 
 
 @dataclass(frozen=True)
+class Vote:
+    """One hyperbola's vote: its apex (m along the line, ns after time zero), the velocity it focuses at, its weight."""
+
+    x_m: float
+    t_ns: float
+    v: float
+    weight: float
+
+
+@dataclass(frozen=True)
 class VelocityEstimate:
     """The velocity (m/ns), its 1-sigma uncertainty, the number of diffractions used, and how."""
 
@@ -50,6 +60,9 @@ class VelocityEstimate:
     n_used: int
     method: str
     shallow: bool = False  # only targets within SHALLOW_M of the surface voted: the antenna geometry rules there
+    # each hyperbola's own vote, so that an analyst sees whether they agree (a few votes in two clusters make a
+    # median that jumps between them: the SU trench line read 0.147 or 0.169 m/ns with its trace step 0.15 % apart)
+    votes: tuple[Vote, ...] = ()
 
 
 def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatArray) -> FloatArray:
@@ -193,7 +206,8 @@ def voters(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> list[Reflect
 def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> VelocityEstimate | None:
     """The velocity the hyperbolas' migration focus agrees on; None when no hyperbola focuses."""
     chosen = voters(prep, reflectors)
-    votes = [v for v in (vote(prep, r) for r in chosen) if v is not None]
+    cast = [(r, x) for r, x in ((r, vote(prep, r)) for r in chosen) if x is not None]
+    votes = [x for _, x in cast]
     if not votes:
         return None
     v, w = np.array([x[0] for x in votes]), np.array([x[1] for x in votes])
@@ -205,4 +219,5 @@ def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> V
     how = (f"migration focus of {n} diffraction hyperbolas (weighted median)" if n > 1
            else "the migration focus of one diffraction hyperbola")
     deepest = max(0.5 * median * r.candidate.t_ns for r in chosen)
-    return VelocityEstimate(median, median * sigma_rel, n, how, shallow=deepest < SHALLOW_M)
+    listed = tuple(Vote(float(prep.x_m[r.candidate.column]), r.candidate.t_ns, x[0], x[1]) for r, x in cast)
+    return VelocityEstimate(median, median * sigma_rel, n, how, shallow=deepest < SHALLOW_M, votes=listed)
