@@ -184,6 +184,16 @@ def test_shipped_model_finds_the_pipe() -> None:
     assert d.radius_m == pytest.approx(PIPE_RADIUS, abs=0.02)
 
 
+def test_a_line_read_backwards_gives_the_mirrored_answer() -> None:
+    # the network's answers for the line and for it mirrored are averaged: so the mirror is exact
+    bscan, gpr = _one_pipe_line()
+    image, _ = depth_section(bscan, gpr, velocity_from_eps(EPS_R))
+    net = MigrationNetInterpreter(SHIPPED, threads=1)
+    forward, backward = net.probabilities(image), net.probabilities(np.ascontiguousarray(image[:, ::-1]))
+    np.testing.assert_allclose(backward, forward[:, ::-1], atol=1e-6)
+    assert forward.max() > 0.5
+
+
 def test_training_logs_its_recipe_and_resumes_only_the_same_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

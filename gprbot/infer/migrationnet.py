@@ -156,7 +156,18 @@ class MigrationNetInterpreter:
         return float(self.model.card.get("min_peak", 0.0))
 
     def probabilities(self, image: Float32Array) -> Float32Array:
-        """Pipe probability (ROWS, nx) of a depth section (ROWS, nx)."""
+        """Pipe probability (ROWS, nx) of a depth section (ROWS, nx): the mean of the network's answers for the line
+        and for the line read backwards.
+
+        A common-offset line driven the other way is the same physics (Tx and Rx swap, the times do not), so a blob
+        that only one direction shows is the network's, not the data's. FDTD training batch (out of sample), velocity
+        given: false pipes 14 -> 10 on 40 scenes, within 3 cm 22 of 45 either way (validation/README.md).
+        """
+        mirrored = self._one_way(np.ascontiguousarray(image[:, ::-1]))[:, ::-1]
+        return np.asarray(0.5 * (self._one_way(image) + mirrored), dtype=np.float32)
+
+    def _one_way(self, image: Float32Array) -> Float32Array:
+        """The network's pipe probability for the section as given."""
         tiles, starts = cut_tiles(image)
         outputs, _ = self.model.run({INPUT_NAME: tiles})
         return stitch(np.asarray(outputs[OUTPUT_NAME], dtype=np.float32), starts, image.shape[1])
