@@ -9,7 +9,7 @@ import pytest
 
 from gprbot.config import ReconstructionConfig
 from gprbot.errors import ModelError
-from gprbot.infer.refine import FitRefinerModel, accepted, model_pipe_scores, onehot, refined_reconstruction
+from gprbot.infer.refine import FitRefinerModel, accepted, onehot, refined_reconstruction
 from gprbot.reconstruct.completion import fit_pipes
 from gprbot.reconstruct.register import resample_cloud
 from training.random_scenes import scene_for_seed
@@ -59,43 +59,6 @@ def test_the_refiner_reads_its_pipe_threshold_from_its_card() -> None:
 
     card = json.loads(MODEL.with_suffix(".json").read_text())
     assert FitRefinerModel(MODEL, threads=1).pipe_threshold == card.get("pipe_threshold", 0.5)
-
-
-def test_the_pipe_heads_scores_decide_which_pipes_stay_when_the_model_has_one() -> None:
-    owner = np.array([0, 0, 1, 1])
-    beyond = np.zeros(4)
-    probability = np.array([0.95, 0.9, 0.8, 0.7])  # by its points pipe 1 would stay
-    scores = model_pipe_scores(np.array([0.9, 0.2] + [0.0] * 10), probability, owner, beyond, 2)
-    assert scores == [0.9, 0.2]
-    assert accepted(probability, owner, beyond, 2, pipe_threshold=0.5, scores=scores)[1] == [0]
-    # a model exported before the head: the points' mean, as before
-    assert model_pipe_scores(None, probability, owner, beyond, 2) == pytest.approx([0.925, 0.75])
-
-
-def test_a_fitted_pipe_is_labelled_false_only_when_its_fitted_part_lies_outside_every_true_pipe() -> None:
-    from training.train_refine import FALSE_BELOW, pipe_labels
-
-    query_pipe = np.array([[0, 0, 0, 0, 1, 1, 1, 1, 2, 2]])
-    beyond = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.1, 0.2]])  # pipe 2 has no fitted part
-    inside = np.array([[1.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0]], dtype=np.float32)
-    labels = pipe_labels({"query_pipe": query_pipe, "beyond": beyond, "inside": inside})
-    assert FALSE_BELOW == 0.25
-    assert labels["pipe_present"][0, :4].tolist() == [1.0, 1.0, 0.0, 0.0]
-    assert labels["pipe_real"][0, :2].tolist() == [1.0, 1.0]  # pipe 1: a quarter inside (a broken-off piece)
-    inside[0, 7] = 0.0
-    assert pipe_labels({"query_pipe": query_pipe, "beyond": beyond, "inside": inside})["pipe_real"][0, 1] == 0.0
-
-
-def test_the_pipe_loss_weights_a_false_pipe_up_and_ignores_empty_columns() -> None:
-    import torch
-
-    from training.train_refine import FALSE_WEIGHT, pipe_loss
-
-    logits = torch.tensor([[2.0, 2.0, -50.0]])
-    real, present = torch.tensor([[1.0, 0.0, 1.0]]), torch.tensor([[1.0, 1.0, 0.0]])
-    each = torch.nn.functional.binary_cross_entropy_with_logits(logits[:, :2], real[:, :2], reduction="none")[0]
-    expected = (each[0] + FALSE_WEIGHT * each[1]) / (1.0 + FALSE_WEIGHT)
-    assert float(pipe_loss(logits, real, present)) == pytest.approx(float(expected))
 
 
 def test_pipes_beyond_the_one_hot_columns_see_no_pipe_feature() -> None:

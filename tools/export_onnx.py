@@ -136,9 +136,7 @@ def _refiner_entry() -> ModelEntry:
          (rt.BEYOND_NAME, ("points", 1), "how far each query point lies past its pipe's fitted part, along the "
           "axis (0 inside it), same units")),
         ((rt.LOGITS_NAME, ("points",), "logit that the query point lies inside a real pipe (sigmoid → probability)"),
-         (rt.REFINED_NAME, ("points", 3), "the query points moved by the learned correction, same frame"),
-         (rt.PIPE_LOGITS_NAME, (rt.MAX_PIPES,), "logit that each pipe column's fitted pipe is a real pipe, not a "
-          "false one (sigmoid → probability; columns without a pipe are meaningless)")),
+         (rt.REFINED_NAME, ("points", 3), "the query points moved by the learned correction, same frame")),
         "points centred on the sparse cloud's bounding-box centre and divided by its longest side",
         {"reproduce": [
             "python -m training.refine_data train val --limit 900",

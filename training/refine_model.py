@@ -11,10 +11,7 @@ continued to the survey's edge (gprbot.reconstruct.extension):
 * a global vector pools the sparse cloud and the fitted rods' points;
 * per fitted pipe, a masked max over its fitted points' features: the pipe's context;
 * per candidate point, from [its features; its pipe's; global; how far past the fitted part it lies]:
-  a logit (inside a real pipe?) and a bounded offset — zero at initialisation;
-* per fitted pipe, from [the max and the mean of its fitted points' features; global]: a logit (a real
-  pipe, or a false one?). False pipes are a few in a hundred fitted ones, so the points' labels alone
-  barely teach the network to tell them (training.train_refine weights them up in this head's loss).
+  a logit (inside a real pipe?) and a bounded offset — zero at initialisation.
 
 Inputs are normalised to the sparse cloud's unit cube (gprbot.infer.gprnet.normalisation). Pipes are
 one-hot columns; a point whose row is all zero sees no pipe feature.
@@ -48,14 +45,8 @@ def masked_max(features: torch.Tensor, onehot: torch.Tensor) -> torch.Tensor:
     return torch.where(onehot.sum(dim=1).unsqueeze(-1) > 0, pooled, torch.zeros_like(pooled))
 
 
-def masked_mean(features: torch.Tensor, onehot: torch.Tensor) -> torch.Tensor:
-    """Per column of onehot (B, N, P): the mean of features (B, N, C) over its points → (B, P, C); 0 if none."""
-    total = torch.bmm(onehot.transpose(1, 2), features)  # (B, P, C)
-    return total / onehot.sum(dim=1).clamp(min=1.0).unsqueeze(-1)
-
-
 class FitRefiner(nn.Module):
-    """Acceptance logits and moved points for candidate rod points, and a logit per fitted pipe."""
+    """Acceptance logits and moved points for candidate rod points, from the sparse cloud and the fitted rods."""
 
     def __init__(self, local: int = 64, point: int = 128, global_dim: int = 256, hidden: int = 128) -> None:
         super().__init__()
@@ -68,8 +59,6 @@ class FitRefiner(nn.Module):
         self.offset = nn.Linear(hidden, 3)
         nn.init.zeros_(self.offset.weight)
         nn.init.zeros_(self.offset.bias)
-        self.pipe_head = _mlp(2 * point + global_dim, hidden, hidden)
-        self.pipe_logit = nn.Linear(hidden, 1)
 
     def describe(self, points: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
         """Per-point features (B, N, point) from the position and the K nearest sparse points around it."""
@@ -85,8 +74,8 @@ class FitRefiner(nn.Module):
     def forward(
         self, sparse: torch.Tensor, fit: torch.Tensor, fit_onehot: torch.Tensor, query: torch.Tensor,
         query_onehot: torch.Tensor, beyond: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(B,S,3), (B,F,3), (B,F,P), (B,Q,3), (B,Q,P), (B,Q,1) → logits (B,Q), moved query (B,Q,3), pipes (B,P)."""
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B,S,3), (B,F,3), (B,F,P), (B,Q,3), (B,Q,P), (B,Q,1) → logits (B,Q), moved query (B,Q,3)."""
         fit_features = self.describe(fit, sparse)
         pooled = torch.cat([self.sparse_mlp(sparse), fit_features], dim=1).max(dim=1).values
         global_feature = self.global_mlp(pooled)  # (B, G)
@@ -94,10 +83,7 @@ class FitRefiner(nn.Module):
         own_pipe = torch.bmm(query_onehot, pipes)  # (B, Q, C)
         g_query = global_feature.unsqueeze(1).expand(-1, query.shape[1], -1)
         hidden = self.head(torch.cat([self.describe(query, sparse), own_pipe, g_query, beyond], dim=-1))
-        g_pipes = global_feature.unsqueeze(1).expand(-1, pipes.shape[1], -1)
-        pipe_hidden = self.pipe_head(torch.cat([pipes, masked_mean(fit_features, fit_onehot), g_pipes], dim=-1))
-        moved = query + MAX_OFFSET * torch.tanh(self.offset(hidden))
-        return self.logit(hidden).squeeze(-1), moved, self.pipe_logit(pipe_hidden).squeeze(-1)
+        return self.logit(hidden).squeeze(-1), query + MAX_OFFSET * torch.tanh(self.offset(hidden))
 
 
 def example_inputs(batch: int, fit: int = 1024, query: int = 4096, pipes: int = 12) -> tuple[torch.Tensor, ...]:

@@ -31,7 +31,7 @@ from gprbot.errors import GprbotError
 from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.gprnet import normalisation
 from gprbot.infer.pipeline import interpret_line, survey_velocity
-from gprbot.infer.refine import FIT_POINTS, QUERY_POINTS, SPARSE_POINTS, FitRefinerModel, model_pipe_scores, onehot
+from gprbot.infer.refine import FIT_POINTS, QUERY_POINTS, SPARSE_POINTS, FitRefinerModel, onehot, pipe_scores
 from gprbot.reconstruct.completion import fit_pipes
 from gprbot.reconstruct.extension import RodCandidates, rod_candidates, survey_footprint
 from gprbot.reconstruct.register import resample_cloud
@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CACHE_DIR = ROOT / "training" / "cache"
 INTERPRETERS = ("classical", "migrationnet")  # the two the FitRefiner is trained on and shipped with
 LOST_TRUE_COST = 2.0
-GRID = np.round(np.arange(0.02, 0.995, 0.005), 3)  # the pipe head's scores run below 0.5 too
+GRID = np.round(np.arange(0.5, 0.995, 0.005), 3)
 _RNG_TAG = 0x505448
 
 
@@ -93,10 +93,10 @@ def scored(model: FitRefinerModel, sparse: np.ndarray, candidates: RodCandidates
     def unit(x: np.ndarray) -> np.ndarray:
         return ((x - centre) / scale).astype(np.float32)
 
-    probability, _, pipe_probability = model.run(unit(sparse), unit(candidates.fit), onehot(candidates.fit_pipe),
-                                                 unit(candidates.query), onehot(candidates.query_pipe),
-                                                 (candidates.beyond_m / scale).astype(np.float32))
-    return model_pipe_scores(pipe_probability, probability, candidates.query_pipe, candidates.beyond_m, n_pipes)
+    probability, _ = model.run(unit(sparse), unit(candidates.fit), onehot(candidates.fit_pipe),
+                               unit(candidates.query), onehot(candidates.query_pipe),
+                               (candidates.beyond_m / scale).astype(np.float32))
+    return pipe_scores(probability, candidates.query_pipe, candidates.beyond_m, n_pipes)
 
 
 def choose(false_scores: np.ndarray, true_scores: np.ndarray) -> tuple[float, int, int]:

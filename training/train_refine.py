@@ -8,12 +8,7 @@ training/checkpoints/<name>/last.pt (resume: re-run the same command) and, when 
 improves, best.pt. Each step draws FIT_POINTS of a sample's fitted-rod points and QUERY_POINTS of its
 candidates. Loss: the candidates' binary cross-entropy (inside a true pipe or not) + CD2 (×10³, the
 tables' unit) between the moved candidates that truly lie inside a pipe and a LOSS_POINTS subset of the
-truth, weighted by REFINE_WEIGHT + the fitted pipes' binary cross-entropy (real or false), weighted by
-PIPE_WEIGHT, a false pipe FALSE_WEIGHT times a real one (they are a few in a hundred).
-
-A fitted pipe is false when under FALSE_BELOW of the candidates on its fitted part lie inside a true pipe:
-a piece of a real pipe that the tracker broke off lies inside it and counts as real (dropping it would
-lose that part of the pipe), as in training.refine_pipe_threshold.
+truth, weighted by REFINE_WEIGHT.
 """
 
 from __future__ import annotations
@@ -29,7 +24,7 @@ import torch
 from numpy.typing import NDArray
 from torch.nn import functional as F  # noqa: N812 (the usual name)
 
-from gprbot.infer.refine import MAX_PIPES, accepted, model_pipe_scores
+from gprbot.infer.refine import MAX_PIPES, accepted
 from training.chamfer import chamfer_sq_terms
 from training.refine_data import build_split
 from training.refine_model import FitRefiner
@@ -40,36 +35,12 @@ FIT_POINTS = 1024  # as gprbot.infer.refine feeds them
 QUERY_POINTS = 2048  # per step, of the sample's 4096 candidates (the runtime judges 16384)
 LOSS_POINTS = 2048
 FAR = 10.0  # candidates outside the truth are moved this far so that no truth point picks them as its nearest
-PIPE_WEIGHT = 1.0
-FALSE_WEIGHT = 5.0
-FALSE_BELOW = 0.25
-ARRAYS = ("sparse", "fit", "fit_pipe", "query", "query_pipe", "beyond", "inside", "dense", "pipe_real", "pipe_present")
+ARRAYS = ("sparse", "fit", "fit_pipe", "query", "query_pipe", "beyond", "inside", "dense")
 
 
 def onehot(pipe: torch.Tensor) -> torch.Tensor:
     """Pipe indices (B, N) → one-hot (B, N, MAX_PIPES); indices ≥ MAX_PIPES → rows of zeros."""
     return F.one_hot(pipe.long().clamp(max=MAX_PIPES), MAX_PIPES + 1)[..., :MAX_PIPES].float()
-
-
-def pipe_labels(arrays: dict[str, NDArray[Any]]) -> dict[str, NDArray[np.float32]]:
-    """Per sample and pipe column (N, MAX_PIPES): 1 for a real fitted pipe, and 1 where the column holds a pipe."""
-    n = len(arrays["query_pipe"])
-    real, present = np.zeros((n, MAX_PIPES), np.float32), np.zeros((n, MAX_PIPES), np.float32)
-    fitted = np.asarray(arrays["beyond"]) <= 0.0
-    for i in range(n):
-        for k in range(MAX_PIPES):
-            mine = fitted[i] & (arrays["query_pipe"][i] == k)
-            if mine.any():
-                present[i, k] = 1.0
-                real[i, k] = float(np.mean(arrays["inside"][i][mine]) >= FALSE_BELOW)
-    return {"pipe_real": real, "pipe_present": present}
-
-
-def pipe_loss(pipe_logits: torch.Tensor, real: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
-    """Binary cross-entropy of the fitted pipes' logits, a false pipe weighted FALSE_WEIGHT times a real one."""
-    weight = present * torch.where(real > 0.5, 1.0, FALSE_WEIGHT)
-    each = F.binary_cross_entropy_with_logits(pipe_logits, real, reduction="none")
-    return (each * weight).sum() / weight.sum().clamp(min=1.0)
 
 
 def refine_loss(moved: torch.Tensor, keep: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
@@ -110,18 +81,17 @@ def thin(batch: dict[str, torch.Tensor], gen: torch.Generator) -> dict[str, torc
             **{k: take(k, query_rows) for k in ("query", "query_pipe", "beyond", "inside")}}
 
 
-def predict(model: FitRefiner, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Logits (B, Q), moved candidates (B, Q, 3) and pipe logits (B, MAX_PIPES) of a batch."""
+def predict(model: FitRefiner, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Logits (B, Q) and moved candidates (B, Q, 3) of a batch."""
     return model(batch["sparse"], batch["fit"], onehot(batch["fit_pipe"]), batch["query"], onehot(batch["query_pipe"]),
                  batch["beyond"].unsqueeze(-1))  # type: ignore[no-any-return]
 
 
 def step_losses(model: FitRefiner, batch: dict[str, torch.Tensor], gen: torch.Generator) -> tuple[torch.Tensor, ...]:
-    """Candidate classification, refinement and pipe classification losses of one batch."""
-    logits, moved, pipe_logits = predict(model, batch)
+    """Candidate classification and refinement losses of one batch."""
+    logits, moved = predict(model, batch)
     accept = F.binary_cross_entropy_with_logits(logits, batch["inside"])
-    refine = refine_loss(moved, batch["inside"] > 0.5, random_subset(batch["dense"], LOSS_POINTS, gen))
-    return accept, refine, pipe_loss(pipe_logits, batch["pipe_real"], batch["pipe_present"])
+    return accept, refine_loss(moved, batch["inside"] > 0.5, random_subset(batch["dense"], LOSS_POINTS, gen))
 
 
 def tensors(arrays: dict[str, NDArray[Any]], rows: NDArray[np.intp]) -> dict[str, torch.Tensor]:
@@ -131,8 +101,7 @@ def tensors(arrays: dict[str, NDArray[Any]], rows: NDArray[np.intp]) -> dict[str
 
 @torch.no_grad()
 def validate(model: FitRefiner, arrays: dict[str, NDArray[Any]]) -> dict[str, float]:
-    """Val losses, candidate accuracy, the pipe head's AUC (real over false), and per-sample CD2 (×10³) of the
-    fit's points vs the accepted, moved ones.
+    """Val losses, candidate accuracy, and per-sample CD2 (×10³) of the fit's points vs the accepted, moved ones.
 
     The comparison is in the unit cube against a fixed 4096-point subset of each truth; the fit is its
     FIT_POINTS rod points, ours as many drawn from the accepted candidates (the run-time rule,
@@ -140,19 +109,12 @@ def validate(model: FitRefiner, arrays: dict[str, NDArray[Any]]) -> dict[str, fl
     """
     model.eval()
     gen = torch.Generator().manual_seed(0)
-    accept, refine, pipes, correct, total, fit_cd2, ours_cd2 = [], [], [], 0, 0, [], []
-    real_scores: list[float] = []
-    false_scores: list[float] = []
+    accept, refine, correct, total, fit_cd2, ours_cd2 = [], [], 0, 0, [], []
     for start in range(0, len(arrays["seed"]), 16):
         batch = thin(tensors(arrays, np.arange(start, min(start + 16, len(arrays["seed"])))), gen)
         truth = random_subset(batch["dense"], 2 * LOSS_POINTS, gen)
-        logits, moved, pipe_logits = predict(model, batch)
+        logits, moved = predict(model, batch)
         accept.append(float(F.binary_cross_entropy_with_logits(logits, batch["inside"])))
-        pipes.append(float(pipe_loss(pipe_logits, batch["pipe_real"], batch["pipe_present"])))
-        pipe_probability = torch.sigmoid(pipe_logits).numpy()
-        present, real = batch["pipe_present"].numpy() > 0.5, batch["pipe_real"].numpy() > 0.5
-        real_scores += pipe_probability[present & real].tolist()
-        false_scores += pipe_probability[present & ~real].tolist()
         refine.append(float(refine_loss(moved, batch["inside"] > 0.5, truth)))
         correct += int(((logits > 0) == (batch["inside"] > 0.5)).sum())
         total += logits.numel()
@@ -161,18 +123,13 @@ def validate(model: FitRefiner, arrays: dict[str, NDArray[Any]]) -> dict[str, fl
             one = slice(i, i + 1)
             every = torch.ones(1, FIT_POINTS, dtype=torch.bool)
             fit_cd2.append(float(refine_loss(batch["fit"][one], every, truth[one])))
-            n_pipes = int(pipe[i].max()) + 1  # the run-time rule, at the head's even odds
-            scores = model_pipe_scores(pipe_probability[i], probability[i], pipe[i], beyond[i], n_pipes)
-            points, _ = accepted(probability[i], pipe[i], beyond[i], n_pipes, scores=scores)
+            points, _ = accepted(probability[i], pipe[i], beyond[i], int(pipe[i].max()) + 1)  # the run-time rule
             # as many points as the fit's, so both clouds sit on the same sampling floor
             rows = torch.multinomial(torch.from_numpy(points).float(), FIT_POINTS, replacement=True, generator=gen)
             ours = moved[i][rows].unsqueeze(0)
             ours_cd2.append(float(refine_loss(ours, every, truth[one])))
     model.train()
-    pairs = np.subtract.outer(np.array(real_scores), np.array(false_scores))
-    auc = float(np.mean((pairs > 0) + 0.5 * (pairs == 0))) if pairs.size else math.nan
-    return {"accept": float(np.mean(accept)), "refine": float(np.mean(refine)), "pipe": float(np.mean(pipes)),
-            "pipe_auc": auc, "false_pipes": float(len(false_scores)), "accuracy": correct / max(total, 1),
+    return {"accept": float(np.mean(accept)), "refine": float(np.mean(refine)), "accuracy": correct / max(total, 1),
             "fit_median_cd2": float(np.median(fit_cd2)), "median_cd2": float(np.median(ours_cd2)),
             "fit_mean_cd2": float(np.mean(fit_cd2)), "mean_cd2": float(np.mean(ours_cd2))}
 
@@ -190,7 +147,6 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
 
     train_all = build_split("train", args.train_limit)
     val_all = build_split("val", args.val_limit)
-    train_all, val_all = train_all | pipe_labels(train_all), val_all | pipe_labels(val_all)
     train_rows = np.flatnonzero(usable(train_all))
     val = {k: x[usable(val_all)] for k, x in val_all.items() if k != "skipped"}
     config = {"local": args.local, "point": args.point, "global_dim": args.global_dim, "hidden": args.hidden}
@@ -219,19 +175,18 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(args.lr, epoch * steps_per_epoch + i, total_steps)
             batch = thin(augment(tensors(train_all, order[i * args.batch_size : (i + 1) * args.batch_size]), gen), gen)
-            accept, refine, pipe = step_losses(model, batch, gen)
-            loss = accept + REFINE_WEIGHT * refine + PIPE_WEIGHT * pipe
+            accept, refine = step_losses(model, batch, gen)
+            loss = accept + REFINE_WEIGHT * refine
             optimizer.zero_grad()
             loss.backward()  # type: ignore[no-untyped-call]
             optimizer.step()
-            losses.append((accept.item(), refine.item(), pipe.item()))
+            losses.append((float(accept), float(refine)))
         elapsed += time.perf_counter() - start
         epoch += 1
         v = validate(model, val)
-        val_loss = v["accept"] + REFINE_WEIGHT * v["refine"] + PIPE_WEIGHT * v["pipe"]
-        history.append({"epoch": epoch, "elapsed_s": elapsed, "train_accept": float(np.mean([a for a, _, _ in losses])),
-                        "train_refine": float(np.mean([r for _, r, _ in losses])),
-                        "train_pipe": float(np.mean([p for _, _, p in losses])), "val_loss": val_loss,
+        val_loss = v["accept"] + REFINE_WEIGHT * v["refine"]
+        history.append({"epoch": epoch, "elapsed_s": elapsed, "train_accept": float(np.mean([a for a, _ in losses])),
+                        "train_refine": float(np.mean([r for _, r in losses])), "val_loss": val_loss,
                         **{f"val_{k}": x for k, x in v.items()}})
         state = {"model": model.state_dict(), "model_config": config, "epoch": epoch, "seed": args.seed,
                  "optimizer": optimizer.state_dict(), "elapsed_s": elapsed, "history": history,
@@ -243,9 +198,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             best = val_loss
             torch.save({k: x for k, x in state.items() if k != "optimizer"}, out_dir / "best.pt")
         say(f"epoch {epoch} {elapsed / 60:.1f} min accept {history[-1]['train_accept']:.3f} refine "
-            f"{history[-1]['train_refine']:.3f} pipe {history[-1]['train_pipe']:.3f} | val accept {v['accept']:.3f} "
-            f"refine {v['refine']:.3f} pipe {v['pipe']:.3f} (AUC {v['pipe_auc']:.3f} over {v['false_pipes']:.0f} "
-            f"false) acc "
+            f"{history[-1]['train_refine']:.3f} | val accept {v['accept']:.3f} refine {v['refine']:.3f} acc "
             f"{v['accuracy']:.3f} median CD2 {v['median_cd2']:.3f} (fit {v['fit_median_cd2']:.3f}) mean "
             f"{v['mean_cd2']:.3f} (fit {v['fit_mean_cd2']:.3f})")
     (out_dir / "history.json").write_text(json.dumps(history, indent=1))

@@ -5,17 +5,16 @@
    sampled inside these longer rods.
 3. The network (ONNX) sees the sparse cloud and points of the fitted rods, and says for every candidate
    point whether it lies inside a real pipe, and by how much to move it (the interpreter's radius and
-   depth biases), and for every fitted pipe how likely it is a real one (a model exported before that head
-   existed: the mean probability over the pipe's fitted part). A pipe scoring below the model's pipe
-   threshold (its card's, chosen on the validation surveys) is dropped as false; along a kept one, the
-   accepted points may reach past where the fit stopped (the pipe goes on).
+   depth biases). A pipe whose fitted part scores below the model's pipe threshold (its card's, chosen on the
+   validation surveys) is dropped as false; along a kept one, the accepted points may reach past where the
+   fit stopped (the pipe goes on).
 4. The dense cloud is cfg.dense_points of the accepted, moved points.
 
 Without a model (completion "extended") every candidate is accepted and none is moved: the fit pushed on
 to the survey's edge by rule — the baseline that says how much of the refiner's gain is the network's.
 
-pipes.json gets the kept pipes, each axis cut to the span of its accepted points and its confidence its
-score, and `inferred_m` how much of it at each end no line saw. Axes
+pipes.json gets the kept pipes, each axis cut to the span of its accepted points and its confidence the
+mean probability over its fitted part, and `inferred_m` how much of it at each end no line saw. Axes
 and radii are the fit's (axes cut or continued; the corrections move cloud points only).
 """
 
@@ -39,7 +38,7 @@ from gprbot.reconstruct.register import SliceCloud, resample_cloud
 
 SPARSE_NAME, FIT_NAME, FIT_PIPES_NAME = "sparse_points", "fit_points", "fit_pipes"
 QUERY_NAME, QUERY_PIPES_NAME, BEYOND_NAME = "query_points", "query_pipes", "query_beyond"
-LOGITS_NAME, REFINED_NAME, PIPE_LOGITS_NAME = "point_logits", "refined_points", "pipe_logits"
+LOGITS_NAME, REFINED_NAME = "point_logits", "refined_points"
 SPARSE_POINTS = 1500
 FIT_POINTS = 1024
 QUERY_POINTS = 16384  # candidates; about half are accepted on a typical survey, cfg.dense_points are kept
@@ -71,32 +70,15 @@ class FitRefinerModel:
         self.last_seconds = 0.0
 
     def run(self, sparse: NDArray[np.float32], fit: NDArray[np.float32], fit_pipes: NDArray[np.float32],
-            query: NDArray[np.float32], query_pipes: NDArray[np.float32], beyond: NDArray[np.float32],
-            ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
-        """One pass in the normalised frame: acceptance probability (Q,), moved query points (Q, 3) and each
-        pipe column's probability of a real pipe (MAX_PIPES,; None from a model without the pipe head)."""
+            query: NDArray[np.float32], query_pipes: NDArray[np.float32],
+            beyond: NDArray[np.float32]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """One pass in the normalised frame: acceptance probability (Q,) and moved query points (Q, 3)."""
         feeds = {SPARSE_NAME: sparse, FIT_NAME: fit, FIT_PIPES_NAME: fit_pipes, QUERY_NAME: query,
                  QUERY_PIPES_NAME: query_pipes, BEYOND_NAME: beyond[:, None]}
         batch = {k: np.asarray(v, dtype=np.float32)[None] for k, v in feeds.items()}
         outputs, self.last_seconds = self.model.run(batch)
         logits = np.asarray(outputs[LOGITS_NAME], dtype=np.float64)[0]
-        pipes = outputs.get(PIPE_LOGITS_NAME)
-        pipe_probability = None if pipes is None else _sigmoid(np.asarray(pipes, dtype=np.float64)[0])
-        return _sigmoid(logits), np.asarray(outputs[REFINED_NAME], dtype=np.float64)[0], pipe_probability
-
-
-def _sigmoid(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    return 1.0 / (1.0 + np.exp(-x))
-
-
-def model_pipe_scores(pipe_probability: NDArray[np.float64] | None, probability: NDArray[np.float64],
-                      owner: NDArray[np.int64], beyond: NDArray[np.float64], n_pipes: int) -> list[float]:
-    """Each fitted pipe's score: the pipe head's probability (pipes past its columns and models without it:
-    the points' mean, pipe_scores)."""
-    by_points = pipe_scores(probability, owner, beyond, n_pipes)
-    if pipe_probability is None:
-        return by_points
-    return [float(pipe_probability[k]) if k < len(pipe_probability) else by_points[k] for k in range(n_pipes)]
+        return 1.0 / (1.0 + np.exp(-logits)), np.asarray(outputs[REFINED_NAME], dtype=np.float64)[0]
 
 
 def pipe_scores(probability: NDArray[np.float64], owner: NDArray[np.int64], beyond: NDArray[np.float64],
@@ -108,15 +90,11 @@ def pipe_scores(probability: NDArray[np.float64], owner: NDArray[np.int64], beyo
 
 
 def accepted(probability: NDArray[np.float64], owner: NDArray[np.int64], beyond: NDArray[np.float64],
-             n_pipes: int, pipe_threshold: float = ACCEPT,
-             scores: Sequence[float] | None = None) -> tuple[NDArray[np.bool_], list[int]]:
-    """The accepted points and the kept pipes (score at least pipe_threshold; at least the likeliest pipe).
-
-    scores: each pipe's (None: the mean point probability over its fitted part, pipe_scores)."""
+             n_pipes: int, pipe_threshold: float = ACCEPT) -> tuple[NDArray[np.bool_], list[int]]:
+    """The accepted points and the kept pipes (score at least pipe_threshold; at least the likeliest pipe)."""
     inside_fit = beyond <= 0.0
-    if scores is None:
-        scores = pipe_scores(probability, owner, beyond, n_pipes)
-    kept = [k for k in range(n_pipes) if scores[k] >= pipe_threshold] or [int(np.argmax(np.asarray(scores)))]
+    scores = pipe_scores(probability, owner, beyond, n_pipes)
+    kept = [k for k in range(n_pipes) if scores[k] >= pipe_threshold] or [int(np.argmax(scores))]
     points = (probability >= ACCEPT) & np.isin(owner, kept)
     if not points.any():  # the likeliest pipe's fitted part stands, as the fit drew it
         points = np.isin(owner, kept) & inside_fit
@@ -145,15 +123,12 @@ def refined_reconstruction(
 
     if model is None:
         probability, moved = np.ones(len(candidates.query)), unit(candidates.query).astype(np.float64)
-        scores = pipe_scores(probability, candidates.query_pipe, candidates.beyond_m, len(pipes))
     else:
-        probability, moved, pipe_probability = model.run(
-            unit(sparse), unit(candidates.fit), onehot(candidates.fit_pipe), unit(candidates.query),
-            onehot(candidates.query_pipe), (candidates.beyond_m / scale).astype(np.float32))
-        scores = model_pipe_scores(pipe_probability, probability, candidates.query_pipe, candidates.beyond_m,
-                                   len(pipes))
+        probability, moved = model.run(unit(sparse), unit(candidates.fit), onehot(candidates.fit_pipe),
+                                       unit(candidates.query), onehot(candidates.query_pipe),
+                                       (candidates.beyond_m / scale).astype(np.float32))
     points, kept = accepted(probability, candidates.query_pipe, candidates.beyond_m, len(pipes),
-                            ACCEPT if model is None else model.pipe_threshold, scores)
+                            ACCEPT if model is None else model.pipe_threshold)
     new_index = {old: new for new, old in enumerate(kept)}
     chosen = []
     for k in kept:
@@ -162,12 +137,13 @@ def refined_reconstruction(
         span = arclength_on(candidates.query[mine], axis) if mine.any() else np.array([0.0])
         total = polyline_length(axis)
         inferred = (max(0.0, added[0] - float(span.min())), max(0.0, float(span.max()) - (total - added[1])))
+        fitted = (candidates.query_pipe == k) & (candidates.beyond_m <= 0.0)
         ends = tuple(None if e is None else new_index.get(e) for e in pipes[k].ends_on)
         cut = cut_polyline(axis, float(span.min()), float(span.max()))
         # The radius stays the fit's: re-measured from the corrected points (R = √(2·mean d²)) it came out
         # worse end to end (median |diameter error| 16 % against the fit's 11 %, classical, 60 simulated surveys).
         chosen.append(replace(pipes[k], axis=cut, depth_of_cover_m=float(np.min(-cut[:, 2])) - pipes[k].radius_m,
-                              confidence=scores[k],
+                              confidence=float(np.mean(probability[fitted])) if fitted.any() else 0.0,
                               ends_on=(ends[0], ends[1]), inferred_m=inferred))
     pick = rng.choice(np.flatnonzero(points), size=cfg.dense_points,
                       replace=int(points.sum()) < cfg.dense_points)
