@@ -31,3 +31,16 @@ def test_targets_compare_gprnet_with_each_baseline_at_the_issue_margins() -> Non
     assert any("PF-Net CD2 = 1.100 (target ≤ 1.0): NOT met" in line for line in lines)
     assert any("beats the geometric fit on CD2 in: straight" in line for line in lines)
     assert any("120.0 ms (target ≤ 100 ms): NOT met" in line for line in lines)
+
+
+def test_a_seeds_gprnet_is_set_against_the_baselines_of_the_same_seed() -> None:
+    def table(cd2_e3: float) -> dict[str, dict[str, float]]:
+        return {case: {"cd2_e3": cd2_e3} for case in ("all", *evaluate.CASES)}
+
+    report = {"table1": {"gprnet": table(1.0), "pcn": table(1.0), "pfnet": table(1.0), "geometric": table(0.5),
+                         "gprnet_s1": table(2.0), "pcn_s1": table(2.5), "pfnet_s1": table(1.6)},
+              "latency": {}}
+    lines = evaluate.targets(report)
+    assert any("gprnet_s1 CD2 / pcn_s1 CD2 = 0.800 (target ≤ 0.89): met" in line for line in lines)
+    assert any("gprnet_s1 CD2 / pfnet_s1 CD2 = 1.250 (target ≤ 1.0): NOT met" in line for line in lines)
+    assert not any("gprnet_s1 CD2 / PCN" in line for line in lines)  # not seed 0's baseline
