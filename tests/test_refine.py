@@ -94,3 +94,14 @@ def test_a_model_that_is_not_a_refiner_is_refused_with_what_to_do() -> None:
         pytest.skip("models/gprnet.onnx not committed")
     with pytest.raises(ModelError, match="fit_refiner"):
         FitRefinerModel(other, threads=1)
+
+
+def test_the_acceptance_loss_weights_candidates_outside_every_pipe() -> None:
+    import torch
+
+    from training.train_refine import accept_loss
+
+    logits, inside = torch.tensor([2.0, 2.0]), torch.tensor([1.0, 0.0])
+    each = torch.nn.functional.binary_cross_entropy_with_logits(logits, inside, reduction="none")
+    assert float(accept_loss(logits, inside)) == pytest.approx(float(each.mean()))
+    assert float(accept_loss(logits, inside, 10.0)) == pytest.approx(float((each[0] + 10.0 * each[1]) / 2.0))
