@@ -1,4 +1,4 @@
-"""The fit-conditioned completion at run time: the geometric fit, continued, pruned and corrected by the FitRefiner.
+"""The fit-conditioned completion at run time: the geometric fit, continued, judged and corrected by the FitRefiner.
 
 1. The geometric fit through the slices gives pipes (axes, radii) as always.
 2. Each pipe's free ends are pushed on to the survey's edge (gprbot.reconstruct.extension); points are
@@ -12,6 +12,8 @@
 
 Without a model (completion "extended") every candidate is accepted and none is moved: the fit pushed on
 to the survey's edge by rule — the baseline that says how much of the refiner's gain is the network's.
+Measured (models/README.md, training.refine_parts): the shipped models accept every candidate too, so their
+whole effect is the offsets.
 
 pipes.json gets the kept pipes, each axis cut to the span of its accepted points and its confidence the
 mean probability over its fitted part, and `inferred_m` how much of it at each end no line saw. Axes
