@@ -21,7 +21,18 @@ from validation.fdtd.gprmax_input import (
     layout,
 )
 from validation.fdtd.run import queue
-from validation.fdtd.scenes import C_M_PER_NS, N_TRAIN, Concrete, Pipe, Rebar, Scene, all_scenes, training_scenes
+from validation.fdtd.scenes import (
+    C_M_PER_NS,
+    N_HOLDOUT,
+    N_TRAIN,
+    Concrete,
+    Pipe,
+    Rebar,
+    Scene,
+    all_scenes,
+    holdout_scenes,
+    training_scenes,
+)
 
 SCENES = {s.name: s for s in all_scenes()}
 COMMITTED = sorted(DATA.glob("*.json"))
@@ -75,7 +86,7 @@ def test_split_is_deterministic_and_balanced() -> None:
     assert len(SCENES) >= 40
     halves = Counter(s.half for s in again)
     assert abs(halves["dev"] - halves["test"]) <= 1
-    split = [s for s in again if s.half != "train"]
+    split = [s for s in again if s.half in ("dev", "test")]
     for kind in {s.kind for s in split}:
         assert {s.half for s in split if s.kind == kind} == {"dev", "test"}, kind
     for half in ("dev", "test"):
@@ -87,17 +98,27 @@ def test_queue_interleaves_halves() -> None:
     order = [s.half for s in queue(all_scenes())]
     assert order[:10] == ["dev", "test"] * 5
     assert len(order) == len(SCENES)
-    assert order[-N_TRAIN:] == ["train"] * N_TRAIN  # the training batch only after both halves
+    # the training batch only after both halves, the holdout batch last
+    assert order[-N_TRAIN - N_HOLDOUT:] == ["train"] * N_TRAIN + ["holdout"] * N_HOLDOUT
 
 
 def test_the_training_batch_is_its_own_draw() -> None:
     train = training_scenes()
     assert len(train) == N_TRAIN and {s.half for s in train} == {"train"}
     assert all(s.name.startswith("train_") for s in train)
-    held = [s for s in all_scenes() if s.half != "train"]
+    held = [s for s in all_scenes() if s.half in ("dev", "test")]
     # no scene of either half drawn again: different names, frequencies and targets
     assert not {s.name for s in train} & {s.name for s in held}
     assert not {(s.frequency_mhz, s.pipes) for s in train} & {(s.frequency_mhz, s.pipes) for s in held}
+
+
+def test_the_holdout_batch_is_a_draw_of_its_own() -> None:
+    holdout = holdout_scenes()
+    assert len(holdout) == N_HOLDOUT and {s.half for s in holdout} == {"holdout"}
+    assert all(s.name.startswith("holdout_") for s in holdout)
+    others = [s for s in all_scenes() if s.half != "holdout"]
+    assert not {s.name for s in holdout} & {s.name for s in others}
+    assert not {(s.frequency_mhz, s.pipes) for s in holdout} & {(s.frequency_mhz, s.pipes) for s in others}
 
 
 def test_decimation_keeps_forty_samples_per_period() -> None:

@@ -30,13 +30,13 @@ POLL_S = 20.0
 
 def queue(scenes: list[Scene]) -> list[Scene]:
     """Cheap scenes first, dev and test interleaved, so a partial batch fills both halves evenly; the training
-    batch after them."""
+    batch after them, then the holdout batch."""
     by_half = {h: sorted((s for s in scenes if s.half == h), key=lambda s: layout(s).estimate_s(s.traces))
-               for h in ("dev", "test", "train")}
+               for h in ("dev", "test", "train", "holdout")}
     out: list[Scene] = []
     for i in range(max(len(by_half["dev"]), len(by_half["test"]))):
         out += [by_half[h][i] for h in ("dev", "test") if i < len(by_half[h])]
-    return out + by_half["train"]
+    return out + by_half["train"] + by_half["holdout"]
 
 
 def run_dir(scene: Scene) -> Path:
