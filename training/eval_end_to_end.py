@@ -317,8 +317,9 @@ def main() -> None:
     parser.add_argument("--source", choices=tuple(SOURCES), default="sim")
     parser.add_argument("--limit", type=int, default=60,
                         help="sim: the first N test scenes in seed order (150 in the split; 60 take ~15 min here)")
-    parser.add_argument("--half", choices=("test", "dev", "train"), default="test",
-                        help="fdtd: which half (report: test; train: the training batch)")
+    parser.add_argument("--half", choices=("test", "dev", "train", "holdout"), default="test",
+                        help="fdtd: which half (report: test; train: the training batch; holdout: only as "
+                             "validation/README.md's holdout rule says)")
     parser.add_argument("--out", type=Path, default=None, help="default models/eval_end_to_end[_fdtd]")
     args = parser.parse_args()
     surveys = survey_makers(args.source, load_config().gpr, args.limit, args.half)
