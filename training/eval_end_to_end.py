@@ -31,11 +31,13 @@ from numpy.typing import NDArray
 
 from gprbot.config import Config, GprConfig, load_config
 from gprbot.errors import GprbotError
+from gprbot.gpr.bscan import BScan
 from gprbot.gpr.preprocess import preprocess
+from gprbot.gpr.velocity import CrossingHint
 from gprbot.infer.pipeline import complete_slices, interpret_line, survey_velocity
 from gprbot.progress import track
 from gprbot.reconstruct.completion import Reconstruction
-from gprbot.reconstruct.extension import survey_footprint
+from gprbot.reconstruct.extension import Footprint, survey_footprint
 from gprbot.reconstruct.register import resample_cloud
 from gprbot.simulated.evaluation import compare_to_truth
 from training.chamfer import cloud_metrics
@@ -62,6 +64,26 @@ def chain_config(base: Config, gpr: GprConfig, method: str, completion: str) -> 
         base, gpr=gpr, interpretation=dataclasses.replace(base.interpretation, method=method),
         reconstruction=reconstruction,
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class PreparedSurvey:
+    """What every interpreter of a survey shares: its lines preprocessed, the survey's velocity and crossing hints,
+    and the footprint its lines cover."""
+
+    processed: dict[int, BScan]
+    velocity: float
+    hints: tuple[CrossingHint, ...]
+    footprint: Footprint
+
+
+def prepare_survey(survey: Survey, cfg: Config) -> PreparedSurvey:
+    """Preprocess every line and estimate the survey's velocity once (neither depends on the interpreter); raises
+    GprbotError where no velocity is found, as the product refuses the survey."""
+    processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
+    velocity, _, hints, _ = survey_velocity(processed, cfg)
+    return PreparedSurvey(processed, velocity, tuple(hints),
+                          survey_footprint({line: b.positions for line, b in processed.items()}))
 
 
 def score_row(survey: Survey, recon: Reconstruction, cloud: NDArray[np.float64] | None) -> dict[str, Any]:
@@ -94,13 +116,12 @@ def evaluate_survey(survey: Survey, base: Config) -> list[dict[str, Any]]:
         return {**head, "interpretation": method, "completion": completion, "refused": str(exc),
                 "velocity_err_rel": None, "interpret_s": None, **score_row(survey, empty, None)}
 
-    cfg = chain_config(base, survey.gpr, "classical", COMPLETIONS[0])
     try:
-        processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
-        velocity, _, hints, _ = survey_velocity(processed, cfg)
+        prepared = prepare_survey(survey, chain_config(base, survey.gpr, "classical", COMPLETIONS[0]))
     except GprbotError as exc:  # no velocity: every chain refuses the survey
         return [refused(m, c, exc) for m in INTERPRETERS for c in COMPLETIONS]
-    footprint = survey_footprint({line: b.positions for line, b in processed.items()})
+    processed, velocity, hints, footprint = (prepared.processed, prepared.velocity, prepared.hints,
+                                             prepared.footprint)
     rows = []
     for method in INTERPRETERS:
         cfg = chain_config(base, survey.gpr, method, COMPLETIONS[0])

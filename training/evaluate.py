@@ -453,10 +453,17 @@ def standing_lines(report: dict[str, Any]) -> list[str]:
 SEEDED = ("gprnet", "pcn", "pfnet")  # the paper's comparison; seed k > 0 is scored as NAME_sK (--extra)
 
 
+def seed_suffix(name: str, model: str) -> str | None:
+    """"" for the model's shipped run (NAME), "_sK" for its seed K (NAME_sK), None for any other name."""
+    if name == model:
+        return ""
+    return name[len(model):] if name.startswith(f"{model}_s") and name[len(model) + 2:].isdigit() else None
+
+
 def seed_runs(report: dict[str, Any]) -> dict[str, list[str]]:
     """The scored runs of each compared model: NAME (seed 0, shipped) and NAME_s1, NAME_s2, ..."""
     t1 = report["table1"]
-    return {m: [n for n in t1 if n == m or (n.startswith(f"{m}_s") and n[len(m) + 2:].isdigit())] for m in SEEDED}
+    return {m: [n for n in t1 if seed_suffix(n, m) is not None] for m in SEEDED}
 
 
 def seed_lines(report: dict[str, Any]) -> list[str]:
@@ -492,7 +499,7 @@ def targets(report: dict[str, Any]) -> list[str]:
     for g_name in (n for n in t1 if n.startswith("gprnet")):
         g = t1[g_name]["all"]["cd2_e3"]
         label = NAMES.get(g_name, g_name)
-        seed = g_name[len("gprnet"):] if g_name[len("gprnet"):].startswith("_s") else ""
+        seed = seed_suffix(g_name, "gprnet") or ""  # an ablation (not a seed) is set against seed 0's
         for base, bar in ((f"pcn{seed}", 0.89), (f"pfnet{seed}", 1.0)):
             if base in t1:
                 ratio = g / t1[base]["all"]["cd2_e3"]

@@ -19,15 +19,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gprbot.config import load_config
+from gprbot.config import Config, load_config
 from gprbot.errors import GprbotError
-from gprbot.gpr.preprocess import preprocess
-from gprbot.infer.pipeline import interpret_line, survey_velocity
+from gprbot.infer.pipeline import interpret_line
 from gprbot.infer.refine import FitRefinerModel, refined_reconstruction
-from gprbot.reconstruct.extension import survey_footprint
 from gprbot.reconstruct.register import resample_cloud
 from training.e2e_surveys import simulated_survey
-from training.eval_end_to_end import _RNG_TAG, chain_config, score_row
+from training.eval_end_to_end import _RNG_TAG, chain_config, prepare_survey, score_row
 from training.pointcloud_data import load_split
 
 VARIANTS = ("rule", "network", "acceptance only", "offsets only")
@@ -49,18 +47,17 @@ class Swapped:
         return np.ones_like(probability), moved
 
 
-def survey_rows(index: int, data: Any, method: str, model: FitRefinerModel) -> dict[str, dict[str, Any]]:
+def survey_rows(index: int, data: Any, method: str, model: FitRefinerModel, base: Config) -> dict[str, dict[str, Any]]:
     """The four completions' scores on one validation survey ({} when the survey is refused)."""
-    base = load_config()
     survey = simulated_survey(index, data, base.gpr)
     cfg = chain_config(base, survey.gpr, method, "extended")
     try:
-        processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
-        velocity, _, hints, _ = survey_velocity(processed, cfg)
-        slices = [interpret_line(line, b, cfg, velocity, hints).slice for line, b in processed.items()]
+        prepared = prepare_survey(survey, cfg)
+        slices = [interpret_line(line, b, cfg, prepared.velocity, prepared.hints).slice
+                  for line, b in prepared.processed.items()]
     except GprbotError:
         return {}
-    footprint = survey_footprint({line: b.positions for line, b in processed.items()})
+    footprint = prepared.footprint
     points = np.concatenate([s.points for s in slices])
     if not len(points):
         return {}
@@ -85,11 +82,11 @@ def main() -> None:
     parser.add_argument("--method", default="classical", choices=("classical", "chain", "migrationnet"))
     parser.add_argument("--model", type=Path, default=Path("models/fit_refiner.onnx"))
     args = parser.parse_args()
-    model = FitRefinerModel(args.model, threads=2)
+    model, base = FitRefinerModel(args.model, threads=2), load_config()
     data = load_split("val")
     rows: dict[str, list[dict[str, Any]]] = {v: [] for v in VARIANTS}
     for i in range(min(args.limit, len(data["seed"]))):
-        for name, row in survey_rows(i, data, args.method, model).items():
+        for name, row in survey_rows(i, data, args.method, model, base).items():
             rows[name].append(row)
         print(f"survey {i + 1}/{args.limit}", flush=True)
     cases = sorted({r["case"] for r in rows["rule"]})

@@ -28,17 +28,16 @@ import numpy as np
 
 from gprbot.config import Config, load_config
 from gprbot.errors import GprbotError
-from gprbot.gpr.preprocess import preprocess
 from gprbot.infer.gprnet import normalisation
-from gprbot.infer.pipeline import interpret_line, survey_velocity
+from gprbot.infer.pipeline import interpret_line
 from gprbot.infer.refine import FIT_POINTS, QUERY_POINTS, SPARSE_POINTS, FitRefinerModel, onehot, pipe_scores
 from gprbot.reconstruct.completion import fit_pipes
-from gprbot.reconstruct.extension import RodCandidates, rod_candidates, survey_footprint
+from gprbot.reconstruct.extension import RodCandidates, rod_candidates
 from gprbot.reconstruct.register import resample_cloud
 from gprbot.simulated.evaluation import compare_to_truth, lies_on_a_pipe
 from training.code_version import code_version
 from training.e2e_surveys import simulated_survey
-from training.eval_end_to_end import chain_config
+from training.eval_end_to_end import chain_config, prepare_survey
 from training.pointcloud_data import load_split
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,13 +53,12 @@ def survey_rows(index: int, data: Any, base: Config, models: dict[str, FitRefine
     survey = simulated_survey(index, data, base.gpr)
     # Preprocessing and the survey's velocity do not depend on the interpreter: once per survey, as
     # training.eval_end_to_end does.
-    cfg = chain_config(base, survey.gpr, INTERPRETERS[0], "refined")
     try:
-        processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
-        velocity, _, hints, _ = survey_velocity(processed, cfg)
+        prepared = prepare_survey(survey, chain_config(base, survey.gpr, INTERPRETERS[0], "refined"))
     except GprbotError:
         return []  # a refused survey has no pipe to keep or drop
-    footprint = survey_footprint({line: b.positions for line, b in processed.items()})
+    processed, velocity, hints, footprint = (prepared.processed, prepared.velocity, prepared.hints,
+                                             prepared.footprint)
     rows = []
     for method in INTERPRETERS:
         cfg = chain_config(base, survey.gpr, method, "refined")
