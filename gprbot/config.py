@@ -104,7 +104,8 @@ class ReconstructionConfig:
     """Registration of slices in 3D and completion into a dense cloud."""
 
     # geometric: the axis + radius fit; extended: the fit with every free pipe end pushed on to the survey's
-    # edge; refined: the fit continued, pruned and corrected by the FitRefiner (models/fit_refiner.onnx);
+    # edge; refined: the fit continued and corrected by the FitRefiner (models/fit_refiner.onnx; measured, it accepts
+    # every continued point, so only its corrections differ);
     # gprnet: GPRNet's dense cloud on the fit's pipes. extended is the default: end to end it measures as well as
     # refined (models/eval_end_to_end.md) without a network
     completion: Literal["geometric", "extended", "refined", "gprnet"] = "extended"
