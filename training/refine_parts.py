@@ -7,7 +7,8 @@ Each validation survey (training.e2e_surveys, the split the pipe thresholds are 
 not read) is interpreted as the product does (velocity estimated) and completed four ways from the same slices
 and random stream: the rule (`extended`), the network (`refined`), the network's acceptance with the points left
 where the rule put them, and every candidate accepted but moved by the network. Prints median and mean CD2×10³,
-pipes and the per-case medians of each.
+pipes and the per-case medians of each; first, how many candidate points of training.refine_data's validation
+samples the network rejects, and how many of them lie outside every true pipe (the acceptance's whole job).
 """
 
 from __future__ import annotations
@@ -22,11 +23,12 @@ from numpy.typing import NDArray
 from gprbot.config import Config, load_config
 from gprbot.errors import GprbotError
 from gprbot.infer.pipeline import interpret_line
-from gprbot.infer.refine import FitRefinerModel, refined_reconstruction
+from gprbot.infer.refine import ACCEPT, FIT_POINTS, FitRefinerModel, onehot, refined_reconstruction
 from gprbot.reconstruct.register import resample_cloud
 from training.e2e_surveys import simulated_survey
 from training.eval_end_to_end import _RNG_TAG, chain_config, prepare_survey, score_row
 from training.pointcloud_data import load_split
+from training.refine_data import build_split
 
 VARIANTS = ("rule", "network", "acceptance only", "offsets only")
 
@@ -45,6 +47,23 @@ class Swapped:
         if self.keep == "acceptance only":
             return probability, np.asarray(query, dtype=np.float64)
         return np.ones_like(probability), moved
+
+
+def acceptance_line(model: FitRefinerModel) -> str:
+    """How many candidates of the validation samples the model rejects (probability under ACCEPT), against how many
+    lie outside every true pipe, in all and past the fitted part."""
+    data = build_split("val")
+    rejected = outside = rejected_past = outside_past = total = 0
+    for i in range(len(data["seed"])):
+        fit = slice(0, FIT_POINTS)  # the runtime's count of the sample's fitted-rod points
+        probability, _ = model.run(data["sparse"][i], data["fit"][i][fit], onehot(data["fit_pipe"][i][fit]),
+                                   data["query"][i], onehot(data["query_pipe"][i]), data["beyond"][i])
+        out, past, no = data["inside"][i] < 0.5, data["beyond"][i] > 0.0, probability < ACCEPT
+        rejected, outside, total = rejected + int(no.sum()), outside + int(out.sum()), total + len(no)
+        rejected_past += int((no & past & out).sum())
+        outside_past += int((past & out).sum())
+    return (f"validation samples ({len(data['seed'])}): {rejected} of {total} candidates rejected, {outside} lie "
+            f"outside every true pipe; past the fitted part {rejected_past} of the {outside_past} outside rejected")
 
 
 def survey_rows(index: int, data: Any, method: str, model: FitRefinerModel, base: Config) -> dict[str, dict[str, Any]]:
@@ -83,6 +102,7 @@ def main() -> None:
     parser.add_argument("--model", type=Path, default=Path("models/fit_refiner.onnx"))
     args = parser.parse_args()
     model, base = FitRefinerModel(args.model, threads=2), load_config()
+    print(acceptance_line(model), flush=True)
     data = load_split("val")
     rows: dict[str, list[dict[str, Any]]] = {v: [] for v in VARIANTS}
     for i in range(min(args.limit, len(data["seed"]))):
