@@ -109,6 +109,10 @@ def test_migrationnet_reports_a_pipe_once_and_says_which_echo_it_dropped(
     assert result["method"] == "migrationnet"
     (pipe,) = result["detections"]
     assert abs(pipe["x_m"] - 0.169) <= 0.03 and abs(pipe["depth_m"] - 0.100) <= 0.03
+    # the blob's half-height is no measured radius: the pipe says so with the chain's keys
+    assert pipe["radius_from"] == "MigrationNet pipe mask" and pipe["radius_supported"] is False
+    assert pipe["cover_m"] == pytest.approx(pipe["depth_m"] - pipe["radius_m"], abs=1e-4)
+    assert pipe["radius_sigma_m"] > 0 and pipe["found_by"] == "migrationnet"
     (note,) = [n for n in result["notes"] if "not reported" in n]
     assert "echoes" in note and "under the pipe at depth 0.1" in note
     assert "not reported" in capsys.readouterr().out

@@ -83,6 +83,7 @@ def test_a_disc_of_probability_becomes_one_detection() -> None:
     d = detections[0]
     assert (d.x_m, d.depth_m) == (pytest.approx(0.7, abs=DX_M), pytest.approx(0.3, abs=DZ_M))
     assert d.radius_m == pytest.approx(0.05, abs=DZ_M) and d.score == pytest.approx(0.9)
+    assert d.radius_from_mask  # the picture marks it "(mask)": a blob's size is not a measured radius
 
 
 def test_a_blob_the_network_is_unsure_of_leaves_the_mask() -> None:

@@ -16,6 +16,7 @@ from gprbot.gpr.bscan import BScan, CrossSection, Detection
 from gprbot.gpr.chain.calibrate import KnownTop
 from gprbot.gpr.chain.classify import ClassifiedDetection
 from gprbot.gpr.chain.run import interpret
+from gprbot.gpr.chain.sizing import BLOB_RADIUS_REL_SIGMA
 from gprbot.gpr.formats import Radargram, read_radargram
 from gprbot.gpr.preprocess import preprocess
 from gprbot.gpr.render import write_bscan_png, write_cross_section_png
@@ -108,6 +109,16 @@ def _detection_json(d: ClassifiedDetection) -> dict[str, object]:
     }
 
 
+def _blob_json(d: Detection) -> dict[str, object]:
+    """One MigrationNet pipe as detections.json lists it: the chain's keys where a blob has them."""
+    return {
+        "x_m": round(d.x_m, 4), "depth_m": round(d.depth_m, 4), "cover_m": round(d.depth_m - d.radius_m, 4),
+        "radius_m": round(d.radius_m, 4), "radius_sigma_m": round(BLOB_RADIUS_REL_SIGMA * d.radius_m, 4),
+        "radius_supported": False, "radius_from": RADIUS_FROM["migrationnet"], "confidence": round(d.score, 3),
+        "found_by": "migrationnet",
+    }
+
+
 Sizer = Callable[[float], Sequence[Detection]]
 
 
@@ -189,8 +200,7 @@ def interpret_file(
         net, dropped = confirmed_section(_migrationnet_section(bscan, gpr, interp, result.velocity),
                                          result.detections, result.rebars)
         section = replace(net, rebars=section.rebars)
-        pipes = [{"x_m": round(d.x_m, 4), "depth_m": round(d.depth_m, 4), "radius_m": round(d.radius_m, 4),
-                  "confidence": round(d.score, 3)} for d in section.detections]
+        pipes = [_blob_json(d) for d in section.detections]
         notes.append("pipes from MigrationNet (interpretation.method: migrationnet); rebars, velocity from the chain")
         notes += [f"MigrationNet's blob at x {d.x_m:.3f} m, depth {d.depth_m:.3f} m not reported: {why}"
                   for d, why in dropped]
