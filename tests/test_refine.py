@@ -105,3 +105,17 @@ def test_the_acceptance_loss_weights_candidates_outside_every_pipe() -> None:
     each = torch.nn.functional.binary_cross_entropy_with_logits(logits, inside, reduction="none")
     assert float(accept_loss(logits, inside)) == pytest.approx(float(each.mean()))
     assert float(accept_loss(logits, inside, 10.0)) == pytest.approx(float((each[0] + 10.0 * each[1]) / 2.0))
+
+
+def test_the_into_truth_offset_loss_only_pulls_points_into_the_truth() -> None:
+    import torch
+
+    from training.train_refine import refine_loss
+
+    truth = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]])
+    moved = torch.tensor([[[0.1, 0.0, 0.0], [5.0, 0.0, 0.0]]])  # the far one is not kept
+    keep = torch.tensor([[True, False]])
+    one_way = float(refine_loss(moved, keep, truth, both_ways=False))
+    assert one_way == pytest.approx(1e3 * 0.01)  # the kept point's distance to the truth, nothing else
+    # both ways adds the truth point at x = 1 that no kept point covers: (1 - 0.1)^2, averaged over the truth
+    assert float(refine_loss(moved, keep, truth)) == pytest.approx(1e3 * (0.01 + (0.01 + 0.81) / 2.0))
