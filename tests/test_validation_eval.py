@@ -29,6 +29,16 @@ def test_a_right_top_with_a_wrong_radius_counts_as_a_top_not_a_centre() -> None:
     assert (s.pipes_within, s.pipes_within_fine, s.tops_within_fine, s.false_pipes) == (0, 0, 1, 1)
 
 
+def test_a_radius_is_judged_apart_where_the_method_claims_to_have_measured_it() -> None:
+    truth = [Target(0.2, 0.2, 0.02, "pipe"), Target(0.5, 0.2, 0.05, "pipe"), Target(0.8, 0.2, 0.03, "pipe")]
+    found = [Found(0.2, 0.2, 0.021, "pipe", radius_measured=True),  # claimed and right
+             Found(0.5, 0.2, 0.02, "pipe", radius_measured=True),  # claimed and wrong
+             Found(0.8, 0.2, 0.03, "pipe"),  # right, but not claimed
+             Found(1.5, 0.2, 0.03, "pipe", radius_measured=True)]  # a false pipe: no radius to judge
+    s = score(found, truth)
+    assert (s.radius_ok, s.radius_claimed, s.radius_claimed_ok) == (2, 2, 1)
+
+
 def test_matching_is_one_to_one_and_nearest_first() -> None:
     truth = [Target(0.50, 0.2, None, "pipe"), Target(0.53, 0.2, None, "pipe")]
     found = [Found(0.52, 0.2, 0.0, "pipe")]

@@ -55,7 +55,7 @@ def run_chain(bscan: BScan, gpr: GprConfig, velocity: float | None,
     sizer = migrationnet_sizer(bscan, cfg)
     result = interpret(bscan, gpr, velocity, sizer=sizer)
     seconds = time.perf_counter() - start
-    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind) for d in result.detections)
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind, d.radius_supported) for d in result.detections)
     return Outcome(found, result.velocity, result.velocity_source == "estimated", seconds, "; ".join(result.notes))
 
 
@@ -80,7 +80,7 @@ def run_legacy(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:
     except GprbotError as exc:
         return Outcome((), math.nan, velocity is None, time.perf_counter() - start, f"failed: {exc}")
     seconds = time.perf_counter() - start
-    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in section.detections)
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe", d.radius_supported) for d in section.detections)
     return Outcome(found, section.velocity_m_per_ns, section.velocity_estimated, seconds)
 
 
@@ -109,8 +109,9 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model
         return Outcome((), v, estimated, time.perf_counter() - start, f"failed: {exc}")
     section, _ = confirmed_section(section, chain.detections, chain.rebars)
     seconds = time.perf_counter() - start
-    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe") for d in section.detections)
-    found += tuple(Found(d.x_m, d.depth_m, d.radius_m, "rebar") for d in chain.rebars)
+    found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe", d.radius_supported and not d.radius_from_mask)
+                  for d in section.detections)
+    found += tuple(Found(d.x_m, d.depth_m, d.radius_m, "rebar", d.radius_supported) for d in chain.rebars)
     return Outcome(found, v, estimated, seconds, note)
 
 

@@ -34,6 +34,7 @@ class Found:
     depth_m: float
     radius_m: float
     kind: str
+    radius_measured: bool = False  # the method says its data measure this radius (not a default or a blob's size)
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,8 @@ class Score:
     rebars: int
     rebars_found: int  # found within tolerance and reported as rebar
     false_rebars: int
+    radius_claimed: int = 0  # pipes found within tolerance whose radius the method says it measured
+    radius_claimed_ok: int = 0  # ... and that radius within 30 %: whether the claim holds
 
 
 def _near(d: Found, t: Target, tol: float, tol_depth: float | None = None) -> bool:
@@ -79,10 +82,11 @@ def score(found: Sequence[Found], truth: Sequence[Target], tol: float = TOLERANC
     bars = [t for t in truth if t.kind == "rebar"]
     on_pipe = match(found, pipes, tol)
     fine = match(found, pipes, min(tol, FINE_TOLERANCE_M))
-    radius_ok = sum(
-        1 for i, j in on_pipe.items()
+    radius_right = {
+        i for i, j in on_pipe.items()
         if pipes[i].radius_m and abs(found[j].radius_m - pipes[i].radius_m) <= RADIUS_TOLERANCE * pipes[i].radius_m
-    )
+    }
+    claimed = {i for i, j in on_pipe.items() if pipes[i].radius_m and found[j].radius_measured}
     tops = match([replace(d, depth_m=d.depth_m - d.radius_m) for d in found],
                  [replace(t, depth_m=None if t.depth_m is None or t.radius_m is None else t.depth_m - t.radius_m)
                   for t in pipes], min(tol, FINE_TOLERANCE_M))
@@ -92,5 +96,5 @@ def score(found: Sequence[Found], truth: Sequence[Target], tol: float = TOLERANC
     false_pipes = sum(1 for j in rest if found[j].kind == "pipe")
     rebars_found = sum(1 for j in bar_hits if found[j].kind == "rebar")
     false_rebars = sum(1 for j in rest if found[j].kind == "rebar" and j not in bar_hits)
-    return Score(len(pipes), len(on_pipe), len(fine), radius_ok, len(tops), false_pipes, len(bars), rebars_found,
-                 false_rebars)
+    return Score(len(pipes), len(on_pipe), len(fine), len(radius_right), len(tops), false_pipes, len(bars),
+                 rebars_found, false_rebars, len(claimed), len(claimed & radius_right))
