@@ -74,3 +74,18 @@ def test_the_replay_option_reads_x_y_and_depth() -> None:
     for bad in ("0.85:0.06", "0.85,0.4:0", "a,b:c", "0.85,nan:0.1"):
         with pytest.raises(argparse.ArgumentTypeError):
             _site_top(bad)
+
+
+def test_survey_velocity_says_how_many_hyperbolas_gave_it_and_warns_where_they_hardly_constrain_it(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from gprbot.gpr.velocity import VelocityEstimate
+    from gprbot.infer.pipeline import estimate_words
+
+    v, estimated, _, method = survey_velocity(_survey(), replace(load_config(), gpr=GPR))
+    assert estimated and abs(v / V - 1.0) < 0.05
+    assert method.startswith("estimated from ") and " hyperbolas on the lines, ±" in method and "hardly" not in method
+    with caplog.at_level("WARNING"):
+        lone = estimate_words(VelocityEstimate(0.154, 0.216, 1))  # a simulated survey's lone 1.4 cm pipe
+    assert lone.startswith("estimated from 1 hyperbola on the lines, ±0.2160 m/ns")
+    assert "hardly constrain" in lone and "gpr.eps_r" in lone and "hardly constrain" in caplog.text
