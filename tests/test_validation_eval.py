@@ -26,7 +26,9 @@ def test_scoring_counts_rebars_reported_as_rebars_as_not_false() -> None:
 def test_a_right_top_with_a_wrong_radius_counts_as_a_top_not_a_centre() -> None:
     truth = [Target(0.5, 0.2, 0.05, "pipe")]  # top at 0.15
     s = score([Found(0.5, 0.16, 0.01, "pipe")], truth)  # top 0.15, centre 4 cm high
-    assert (s.pipes_within, s.pipes_within_fine, s.tops_within_fine, s.false_pipes) == (0, 0, 1, 1)
+    assert (s.pipes_within, s.pipes_within_fine, s.tops_within_fine, s.tops_within, s.false_pipes) == (0, 0, 1, 1, 1)
+    far = score([Found(0.5, 0.20, 0.01, "pipe")], truth)  # centre right, top 4 cm low: found at the centre only
+    assert (far.pipes_within, far.tops_within) == (1, 0)
 
 
 def test_a_radius_is_judged_apart_where_the_method_claims_to_have_measured_it() -> None:

@@ -50,6 +50,7 @@ class Score:
     rebars: int
     rebars_found: int  # found within tolerance and reported as rebar
     false_rebars: int
+    tops_within: int = 0  # x and the top's depth within the tolerance: found, whatever the radius says of the centre
     radius_claimed: int = 0  # pipes found within tolerance whose radius the method says it measured
     radius_claimed_ok: int = 0  # ... and that radius within 30 %: whether the claim holds
 
@@ -87,9 +88,10 @@ def score(found: Sequence[Found], truth: Sequence[Target], tol: float = TOLERANC
         if pipes[i].radius_m and abs(found[j].radius_m - pipes[i].radius_m) <= RADIUS_TOLERANCE * pipes[i].radius_m
     }
     claimed = {i for i, j in on_pipe.items() if pipes[i].radius_m and found[j].radius_measured}
-    tops = match([replace(d, depth_m=d.depth_m - d.radius_m) for d in found],
-                 [replace(t, depth_m=None if t.depth_m is None or t.radius_m is None else t.depth_m - t.radius_m)
-                  for t in pipes], min(tol, FINE_TOLERANCE_M))
+    found_tops = [replace(d, depth_m=d.depth_m - d.radius_m) for d in found]
+    true_tops = [replace(t, depth_m=None if t.depth_m is None or t.radius_m is None else t.depth_m - t.radius_m)
+                 for t in pipes]
+    tops = match(found_tops, true_tops, min(tol, FINE_TOLERANCE_M))
     rest = [j for j in range(len(found)) if j not in set(on_pipe.values())]
     on_bar = match([found[j] for j in rest], bars, tol)
     bar_hits = {rest[j] for j in on_bar.values()}
@@ -97,4 +99,5 @@ def score(found: Sequence[Found], truth: Sequence[Target], tol: float = TOLERANC
     rebars_found = sum(1 for j in bar_hits if found[j].kind == "rebar")
     false_rebars = sum(1 for j in rest if found[j].kind == "rebar" and j not in bar_hits)
     return Score(len(pipes), len(on_pipe), len(fine), len(radius_right), len(tops), false_pipes, len(bars),
-                 rebars_found, false_rebars, len(claimed), len(claimed & radius_right))
+                 rebars_found, false_rebars, len(match(found_tops, true_tops, tol)), len(claimed),
+                 len(claimed & radius_right))
