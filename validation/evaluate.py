@@ -2,8 +2,10 @@
 
 Sets: the FDTD dev half (tune on it), the FDTD test half (report only) and the real files. For each
 method (chain, legacy, migrationnet) with the velocity given and estimated: pipes within 3 cm and 1 cm
-(x and centre depth), radius within 30 %, false pipe detections per scene, rebars found, velocity error
-and time per B-scan. Writes the same tables to a markdown report naming the commit.
+(x and centre depth), radius within 30 % (of all pipes, and of those whose radius the method claims to
+measure), tops within 3 and 1 cm (x and the top's depth: found whatever the radius), false pipe detections
+per scene, rebars found, velocity error and time per B-scan. Writes the same tables to a markdown report
+naming the commit.
 """
 
 from __future__ import annotations
