@@ -34,6 +34,7 @@ class Outcome:
     velocity_estimated: bool
     seconds: float
     note: str = ""
+    velocity_sigma: float = math.nan  # the method's own 1-sigma of an estimated velocity (NaN: it states none)
 
 
 LEGACY_MAX_LINE_M = 40.0
@@ -56,7 +57,8 @@ def run_chain(bscan: BScan, gpr: GprConfig, velocity: float | None,
     result = interpret(bscan, gpr, velocity, sizer=sizer)
     seconds = time.perf_counter() - start
     found = tuple(Found(d.x_m, d.depth_m, d.radius_m, d.kind, d.radius_supported) for d in result.detections)
-    return Outcome(found, result.velocity, result.velocity_source == "estimated", seconds, "; ".join(result.notes))
+    return Outcome(found, result.velocity, result.velocity_source == "estimated", seconds, "; ".join(result.notes),
+                   result.velocity_sigma)
 
 
 def _interp_config(bscan: BScan, v: float) -> InterpretationConfig:
@@ -112,7 +114,7 @@ def run_migrationnet(bscan: BScan, gpr: GprConfig, velocity: float | None, model
     found = tuple(Found(d.x_m, d.depth_m, d.radius_m, "pipe", d.radius_supported and not d.radius_from_mask)
                   for d in section.detections)
     found += tuple(Found(d.x_m, d.depth_m, d.radius_m, "rebar", d.radius_supported) for d in chain.rebars)
-    return Outcome(found, v, estimated, seconds, note)
+    return Outcome(found, v, estimated, seconds, note, chain.velocity_sigma)
 
 
 def run_chain_mask_radius(bscan: BScan, gpr: GprConfig, velocity: float | None) -> Outcome:

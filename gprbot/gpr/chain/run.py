@@ -261,7 +261,7 @@ def interpret(
         est: VelocityEstimate | None = ((estimate_velocity(below.prep, below.reflectors) if below is not None else None)
                                         or estimate_velocity(prep, reflectors))
         if est is not None:
-            v, sigma, source, how, votes = est.v, est.sigma, "estimated", est.method, est.votes
+            v, sigma, source, how, votes = est.v, est.uncertainty, "estimated", est.method, est.votes
             if est.shallow:
                 notes.append("the velocity rests on shallow targets only (within 6 cm of the surface), where the "
                              "antenna's height and Tx-Rx offset govern the curves: check --height/--offset, "

@@ -2,12 +2,14 @@
 
 On one hyperbola radius and velocity trade off (a larger pipe at a lower velocity has nearly the same
 curve over the usable aperture), so fitting curves to picks gives a poor velocity: on the FDTD dev half
-free fits were off by 8-70 %. Migration does not share that trade-off: at the right velocity a
-diffraction, a bar or a pipe's top collapses into its reflector — a point or a short arc — and the
-migrated amplitude peaks there. So each hyperbola is migrated locally (a window around its apex) at a
-ladder of trial velocities, coarse then fine; the velocity where its peak amplitude is highest is its
-vote. The line's velocity is the weighted median of the votes (weights: how sharply each peaks and how
-strong it is); its uncertainty the weighted spread of the votes over √n, never below a quarter step.
+free fits were off by 8-70 %. At the right velocity a diffraction, a bar or a pipe's top collapses into
+its reflector — a point or a short arc — and the migrated amplitude peaks there. So each hyperbola is
+migrated locally (a window around its apex) at a ladder of trial velocities, coarse then fine; the velocity
+where its peak amplitude is highest is its vote. The line's velocity is the weighted median of the votes
+(weights: how sharply each peaks and how strong it is). Near the apex the focus shares the trade-off after
+all (a cylinder focuses as a point at v·√(1 + R/d): validation/README.md), so the reported uncertainty is
+the weighted spread of the votes over √n (never below a quarter step) together with what the voters'
+unknown radii allow (`radius_trade_off`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ MULTIPLE_TIME_TOLERANCE = 0.15  # of twice the primary's apex time
 MIN_CONTRAST = 1.15  # a focus curve whose peak is not this far above its ends says nothing
 SHALLOW_M = 0.06  # FDTD dev half: tops above ~5 cm voted 20-50 % off
 FULL_SPAN_TRACES = 25  # traces within the aperture for a vote at full weight
+# The radius of the larger utility pipes (100 mm across), for the trade-off a vote's unknown radius brings. FDTD
+# dev half: with it 21 of 33 line velocities lie within 1 sigma and 29 within 2; without it 17 and 20.
+RADIUS_SCALE_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -60,9 +65,27 @@ class VelocityEstimate:
     n_used: int
     method: str
     shallow: bool = False  # only targets within SHALLOW_M of the surface voted: the antenna geometry rules there
+    # the relative 1-sigma that the voters' unknown radii add (`radius_trade_off`); `sigma` is the votes' agreement
+    trade_off: float = 0.0
     # each hyperbola's own vote, so that an analyst sees whether they agree (a few votes in two clusters make a
     # median that jumps between them: the SU trench line read 0.147 or 0.169 m/ns with its trace step 0.15 % apart)
     votes: tuple[Vote, ...] = ()
+
+    @property
+    def uncertainty(self) -> float:
+        """The velocity's 1-sigma (m/ns) as reported: the votes' agreement and their radii's trade-off together."""
+        return self.v * math.hypot(self.sigma / self.v, self.trade_off)
+
+
+def radius_trade_off(top_m: FloatArray, weights: FloatArray) -> float:
+    """The relative 1-sigma a line's velocity carries because its voters' radii are unknown.
+
+    A cylinder of radius R with its top at depth d focuses as a point at v·√(1 + R/d) (validation/README.md,
+    the velocity votes), so a vote can be fast by up to that factor; half its log-range for a pipe of
+    RADIUS_SCALE_M, at the typical voter's depth, is the 1-sigma. It does not shrink with more votes: every
+    voter's radius is unknown and each leans the same way.
+    """
+    return weighted_median(0.5 * np.log1p(RADIUS_SCALE_M / np.maximum(top_m, 0.005)), weights)
 
 
 def focus(prep: PreparedBScan, column: int, apex_t_ns: float, velocities: FloatArray) -> FloatArray:
@@ -220,4 +243,6 @@ def estimate_velocity(prep: PreparedBScan, reflectors: Sequence[Reflector]) -> V
            else "the migration focus of one diffraction hyperbola")
     deepest = max(0.5 * median * r.candidate.t_ns for r in chosen)
     listed = tuple(Vote(float(prep.x_m[r.candidate.column]), r.candidate.t_ns, x[0], x[1]) for r, x in cast)
-    return VelocityEstimate(median, median * sigma_rel, n, how, shallow=deepest < SHALLOW_M, votes=listed)
+    tops = np.array([0.5 * x[0] * r.candidate.t_ns for r, x in cast])
+    return VelocityEstimate(median, median * sigma_rel, n, how, shallow=deepest < SHALLOW_M, votes=listed,
+                            trade_off=radius_trade_off(tops, w))
