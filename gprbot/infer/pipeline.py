@@ -59,7 +59,8 @@ class SurveyVelocity(NamedTuple):
 def estimate_words(estimate: VelocityEstimate) -> str:
     """How the survey's hyperbolas gave its velocity, in words, and a warning where they hardly constrain it."""
     n = estimate.n_targets
-    words = f"estimated from {n} hyperbola{'' if n == 1 else 's'} on the lines, ±{estimate.std:.4f} m/ns (1 sigma)"
+    words = (f"estimated from {n} hyperbola{'' if n == 1 else 's'} on the lines, ±{estimate.uncertainty:.4f} m/ns "
+             f"(1 sigma: the fit's own ±{estimate.std:.4f} and what the pipes' unknown sizes allow)")
     if estimate.std <= UNCONSTRAINED * estimate.v:
         return words
     # One weak hyperbola's curve trades the velocity against the pipe's size (validation/README.md): a simulated
