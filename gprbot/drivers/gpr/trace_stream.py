@@ -152,9 +152,10 @@ class TraceStreamParser:
     A frame is plausible when its header is (tv_nsec < 1e9, number >= 1, status < 2**16, stacks a power
     of two — or equal to `stacks` when given — and 20 <= header size <= 64, 4-aligned) and its samples are
     finite and within ±1e5 mV. A frame is delivered only once the bytes after it start with a plausible
-    header of a higher number (or the stream ends right after it and it directly follows the last frame
-    delivered, numbered next), so an insertion or deletion inside a frame is caught even when the frame itself looks
-    fine; when the next number is not higher, one of the two is corrupt and both frames are dropped.
+    header of a higher number and the same header size and stacks (or the stream ends right after it and it
+    directly follows the last frame delivered, numbered next), so an insertion or deletion inside a frame is caught
+    even when the frame itself looks fine; when the next number is not higher, one of the two is corrupt and both
+    frames are dropped; when its layout differs, the frame is dropped and the next one judged on its own.
     The price: a good frame directly followed by garbage or a corrupt header is dropped too (the cases
     look alike), and each trace is delivered one trace period late. On corruption the parser scans
     forward from the rejected frame's second byte for the next plausible header; `resyncs` counts such
@@ -250,6 +251,17 @@ class TraceStreamParser:
                     self._pending = None
                     reason = f"trace {following.number} after trace {pending.header.number}"
                     if not self._resync(events, reason, self._pos + pending.length + 1):
+                        return
+                    continue
+                if (following.header_size, following.stacks) != (pending.header.header_size, pending.header.stacks):
+                    # A stream's header layout and stacking are fixed by its setup. A header size corrupted to a
+                    # larger valid one makes the frame's "extra header" swallow its own samples and take the next
+                    # frame's as its own, and the frame after that still confirms it: one of the two is corrupt.
+                    self._pending = None
+                    reason = (f"trace {pending.header.number} has header size {pending.header.header_size} and "
+                              f"{pending.header.stacks} stacks, the next frame {following.header_size} and "
+                              f"{following.stacks}")
+                    if not self._resync(events, reason, self._pos + 1):
                         return
                     continue
             elif not at_eof:
