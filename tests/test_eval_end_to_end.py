@@ -97,7 +97,8 @@ def test_a_survey_the_hyperbola_fits_find_no_velocity_on_gets_the_chains() -> No
     processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
     with pytest.raises(InterpretationError):
         estimate_velocity(list(processed.values()), cfg.gpr, cfg.interpretation)
-    v, estimated, hints, _ = survey_velocity(processed, cfg)
+    found = survey_velocity(processed, cfg)
+    v, estimated, hints = found.v, found.estimated, found.hints
     assert estimated and hints == ()
     assert abs(v / survey.true_velocity - 1.0) < 0.1
     # A line too short to interpret (a survey stopped just after it began one) does not refuse the others.

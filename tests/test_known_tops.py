@@ -57,7 +57,8 @@ def test_a_known_top_on_a_line_calibrates_the_surveys_velocity() -> None:
 
 def test_survey_velocity_says_it_was_calibrated() -> None:
     cfg = replace(load_config(), gpr=replace(GPR, known_tops=((1.3, 0.0, 0.20),)))
-    v, estimated, _, method = survey_velocity(_survey(), cfg)
+    found = survey_velocity(_survey(), cfg)
+    v, estimated, method = found.v, found.estimated, found.method
     assert abs(v / V - 1.0) < 0.05 and not estimated and method.startswith("calibrated on 1 known top")
 
 
@@ -82,9 +83,11 @@ def test_survey_velocity_says_how_many_hyperbolas_gave_it_and_warns_where_they_h
     from gprbot.gpr.velocity import VelocityEstimate
     from gprbot.infer.pipeline import estimate_words
 
-    v, estimated, _, method = survey_velocity(_survey(), replace(load_config(), gpr=GPR))
+    found = survey_velocity(_survey(), replace(load_config(), gpr=GPR))
+    v, estimated, method = found.v, found.estimated, found.method
     assert estimated and abs(v / V - 1.0) < 0.05
     assert method.startswith("estimated from ") and " hyperbolas on the lines, ±" in method and "hardly" not in method
+    assert found.sigma > 0 and f"±{found.sigma:.4f} m/ns" in method  # the stated sigma, as a number and in words
     with caplog.at_level("WARNING"):
         lone = estimate_words(VelocityEstimate(0.154, 0.216, 1))  # a simulated survey's lone 1.4 cm pipe
     assert lone.startswith("estimated from 1 hyperbola on the lines, ±0.2160 m/ns")

@@ -81,8 +81,8 @@ def prepare_survey(survey: Survey, cfg: Config) -> PreparedSurvey:
     """Preprocess every line and estimate the survey's velocity once (neither depends on the interpreter); raises
     GprbotError where no velocity is found, as the product refuses the survey."""
     processed = {line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}
-    velocity, _, hints, _ = survey_velocity(processed, cfg)
-    return PreparedSurvey(processed, velocity, tuple(hints),
+    found = survey_velocity(processed, cfg)
+    return PreparedSurvey(processed, found.v, tuple(found.hints),
                           survey_footprint({line: b.positions for line, b in processed.items()}))
 
 

@@ -56,14 +56,14 @@ def summary(rows: Sequence[Row]) -> dict[str, str]:
     pipes = sum(x.pipes for x in s)
     # A velocity that was not estimated (a fallback) counts as a miss, on scenes that have targets.
     # A method that failed on the line (NaN) estimated nothing either.
+    judged = [r for r in rows if r.mode == "estimated" and r.case.velocity and r.case.targets]
     v_err = [abs(r.outcome.velocity / r.case.velocity - 1.0)
              if r.outcome.velocity_estimated and math.isfinite(r.outcome.velocity) else float("inf")
-             for r in rows if r.mode == "estimated" and r.case.velocity and r.case.targets]
+             for r in judged]
     v_ok = sum(1 for e in v_err if e <= 0.05)
     # Whether the stated uncertainty holds: the true velocity within two of the method's own sigmas.
     stated = [abs(r.outcome.velocity - r.case.velocity) <= 2.0 * r.outcome.velocity_sigma
-              for r in rows if r.mode == "estimated" and r.case.velocity and r.case.targets
-              and r.outcome.velocity_estimated and math.isfinite(r.outcome.velocity_sigma)]
+              for r in judged if r.outcome.velocity_estimated and math.isfinite(r.outcome.velocity_sigma)]
     times = [r.outcome.seconds for r in rows]
     return {
         "scenes": str(len(rows)),

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import re
 import statistics
 import time
 
@@ -63,18 +62,17 @@ def main() -> None:
             cfg = dataclasses.replace(cfg, gpr=dataclasses.replace(survey.gpr, known_tops=(first_top(survey),)))
         start = time.perf_counter()
         try:
-            v, _, _, how = survey_velocity({line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}, cfg)
+            found = survey_velocity({line: preprocess(b, cfg.gpr) for line, b in survey.bscans.items()}, cfg)
         except GprbotError as exc:
             print(f"{survey.name:26s} {survey.case[:22]:22s} not estimated: {exc}")
             errors.append(math.inf)
             continue
-        error = v / survey.true_velocity - 1.0
+        error = found.v / survey.true_velocity - 1.0
         errors.append(abs(error))
-        stated = re.search(r"±([0-9.]+) m/ns", how)  # the 1-sigma the product states, where it states one
-        if stated:
-            sigmas.append((abs(v - survey.true_velocity), float(stated.group(1))))
+        if math.isfinite(found.sigma):  # the 1-sigma the product states, where it states one
+            sigmas.append((abs(found.v - survey.true_velocity), found.sigma))
         print(f"{survey.name:26s} {survey.case[:22]:22s} {100 * error:+6.1f} %  ({time.perf_counter() - start:.1f} s)"
-              f"  {how}", flush=True)
+              f"  {found.method}", flush=True)
     within = sum(1 for e in errors if e <= 0.05)
     median = 100 * statistics.median(errors)
     held = sum(1 for off, sigma in sigmas if off <= 2.0 * sigma)

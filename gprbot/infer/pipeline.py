@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -48,12 +49,13 @@ UNCONSTRAINED = 0.1
 
 class SurveyVelocity(NamedTuple):
     """The survey's velocity (m/ns), whether it was estimated from the hyperbolas, the pipes' crossing angles,
-    and how it was found, in words."""
+    how it was found, in words, and its stated 1-sigma (m/ns; NaN where none is stated)."""
 
     v: float
     estimated: bool
     hints: tuple[CrossingHint, ...]
     method: str
+    sigma: float = math.nan
 
 
 def estimate_words(estimate: VelocityEstimate) -> str:
@@ -84,7 +86,7 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> SurveyVeloci
     # The survey's hyperbola fits may find none to use; the interpretation chain's migration focus often still
     # does (the FDTD dev half laid on survey lines: 5 of the 6 surveys refused for want of a velocity).
     if estimate is not None:
-        found = SurveyVelocity(float(estimate.v), True, hints, estimate_words(estimate))
+        found = SurveyVelocity(float(estimate.v), True, hints, estimate_words(estimate), estimate.uncertainty)
     else:
         try:
             found = SurveyVelocity(chain_survey_velocity(list(processed.values()), cfg), True, (),
@@ -99,7 +101,8 @@ def survey_velocity(processed: Mapping[int, BScan], cfg: Config) -> SurveyVeloci
         for note in calibration.notes:
             log.warning("known tops: %s", note)
         if calibration.v is not None:
-            return SurveyVelocity(calibration.v, False, hints, f"{calibration.method}, ±{calibration.sigma:.4f} m/ns")
+            return SurveyVelocity(calibration.v, False, hints, f"{calibration.method}, ±{calibration.sigma:.4f} m/ns",
+                                  calibration.sigma)
         log.warning("no known top could be used (above): the velocity is estimated from the hyperbolas")
     if found is None:
         raise InterpretationError(NO_HYPERBOLA)
@@ -279,7 +282,8 @@ def reconstruct_survey(bscans: Mapping[int, BScan], cfg: Config, rng: np.random.
     step("preprocessed")
 
     t0 = time.perf_counter()
-    velocity, estimated, hints, velocity_method = survey_velocity(processed, cfg)
+    found = survey_velocity(processed, cfg)
+    velocity, estimated, hints, velocity_method = found.v, found.estimated, found.hints, found.method
     timings["velocity"] = time.perf_counter() - t0
     step("velocity")
 

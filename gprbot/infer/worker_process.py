@@ -114,7 +114,8 @@ def _line_velocity(processed: BScan, cfg: Config, hint: float | None) -> tuple[f
     if cfg.gpr.eps_r is not None:
         return velocity_from_eps(cfg.gpr.eps_r), "config", ()
     try:
-        velocity, _, hints, _ = survey_velocity({0: processed}, cfg)
+        found = survey_velocity({0: processed}, cfg)
+        velocity, hints = found.v, found.hints
     except errors.InterpretationError:
         return V_GUESS_M_PER_NS, "default guess", ()  # no hyperbola on this line: finish_survey fits all lines
     return velocity, "line estimate", hints
